@@ -1,0 +1,3 @@
+"""bench: ground-support test benches for spacecraft attitude sensors."""
+
+__version__ = "0.1.0"

@@ -1,0 +1,80 @@
+"""Error types shared by every layer, and the exit codes they map to.
+
+Exit codes of the ``bench`` command: 0 success, 1 run failed or aborted, 2 bad input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+class BenchError(Exception):
+    """Base class of every error bench raises on purpose."""
+
+
+@dataclass
+class Location:
+    """Where in an input file something is: 1-based line and column."""
+
+    file: str | Path
+    line: int | None = None
+    column: int | None = None
+
+    def __str__(self) -> str:
+        out = str(self.file)
+        if self.line is not None:
+            out += f":{self.line}"
+            if self.column is not None:
+                out += f":{self.column}"
+        return out
+
+
+class InputError(BenchError):
+    """Bad input (procedure, config, CSV, run file, command line): exit code 2.
+
+    ``str()`` gives one line: ``file:line:column: field: message``.
+    """
+
+    def __init__(self, message: str, location: Location | None = None, field: str | None = None):
+        self.message = message
+        self.location = location
+        self.field = field
+        super().__init__(self.one_line())
+
+    def one_line(self) -> str:
+        parts = []
+        if self.location is not None:
+            parts.append(str(self.location))
+        if self.field:
+            parts.append(self.field)
+        parts.append(self.message)
+        return ": ".join(parts)
+
+
+class DestinationError(InputError):
+    """The runs directory cannot take the run (unwritable, missing space). Refused before the run."""
+
+
+class RecorderError(BenchError):
+    """Writing the run file failed during the run. The runner aborts to the safe state."""
+
+
+class InstrumentError(BenchError):
+    """Base class of instrument faults raised by drivers."""
+
+
+class InstrumentTimeout(InstrumentError):
+    """The instrument did not answer within the timeout."""
+
+
+class ProtocolError(InstrumentError):
+    """The instrument answered something the protocol does not allow (bad frame, NAK, wrong length)."""
+
+
+class DeviceFault(InstrumentError):
+    """The instrument reports a fault of its own (failed built-in test, alarm)."""
