@@ -78,3 +78,15 @@ class ProtocolError(InstrumentError):
 
 class DeviceFault(InstrumentError):
     """The instrument reports a fault of its own (failed built-in test, alarm)."""
+
+
+class InputErrors(InputError):
+    """Several located input errors at once (a procedure or config with many problems).
+
+    ``errors`` holds each one; ``str()`` is the first. The CLI prints one line per error.
+    """
+
+    def __init__(self, errors: list[InputError]):
+        self.errors = list(errors)
+        first = self.errors[0]
+        super().__init__(first.message, first.location, first.field)

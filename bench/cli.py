@@ -1,0 +1,240 @@
+"""The ``bench`` command line. Thin: every command calls into the layers below.
+
+Exit codes: 0 success, 1 run failed or aborted, 2 bad input (one located line per problem, no
+traceback unless ``--debug``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from bench import __version__
+from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BenchError, InputError, InputErrors
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports usage errors as one line and exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="bench", description="Ground-support test benches for spacecraft attitude sensors.")
+    p.add_argument("--version", action="version", version=f"bench {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    r = sub.add_parser("run", help="run a procedure (real instruments unless --sim)")
+    r.add_argument("procedure", type=Path, help="procedure YAML file")
+    r.add_argument("--config", type=Path, required=True, help="lab config YAML file")
+    r.add_argument("--sim", action="store_true", help="simulated instruments behind the same drivers (virtual time)")
+    r.add_argument("--realtime", action="store_true", help="with --sim: run at wall-clock pace")
+    r.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run files go (default: runs/)")
+    r.add_argument("--operator", default=None, help="operator name recorded in the run file (default: login name)")
+
+    i = sub.add_parser("inspect", help="summarise a run file (also while it is being written)")
+    i.add_argument("run_file", type=Path)
+    i.add_argument("--events", type=int, default=40, help="how many of the last events to list (default 40)")
+
+    s = sub.add_parser("sim", help="simulated instruments")
+    ssub = s.add_subparsers(dest="sim_command", metavar="SIMCOMMAND", parser_class=_Parser)
+    sv = ssub.add_parser("serve", help="serve the config's simulated serial instruments on pseudo-terminals")
+    sv.add_argument("--config", type=Path, required=True)
+    sv.add_argument("--instrument", action="append", help="only these instruments (repeatable)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    console = Console(stderr=False, highlight=False)
+    err = Console(stderr=True, highlight=False)
+    try:
+        if args.command == "run":
+            return cmd_run(args, console)
+        if args.command == "inspect":
+            return cmd_inspect(args, console)
+        if args.command == "sim" and args.sim_command == "serve":
+            return cmd_sim_serve(args, console)
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    except InputErrors as exc:
+        if args.debug:
+            raise
+        for e in exc.errors:
+            err.print(e.one_line(), markup=False, soft_wrap=True)
+        return EXIT_BAD_INPUT
+    except InputError as exc:
+        if args.debug:
+            raise
+        err.print(exc.one_line(), markup=False, soft_wrap=True)
+        return EXIT_BAD_INPUT
+    except BenchError as exc:
+        if args.debug:
+            raise
+        err.print(f"bench: {exc}", markup=False, soft_wrap=True)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        err.print("bench: interrupted")
+        return EXIT_FAILED
+    except Exception as exc:  # noqa: BLE001 - last line of defence: one line, not a traceback
+        if args.debug:
+            raise
+        err.print(f"bench: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)", markup=False, soft_wrap=True)
+        return EXIT_FAILED
+
+
+# ---- run --------------------------------------------------------------------------------------
+def cmd_run(args: argparse.Namespace, console: Console) -> int:
+    from bench.config import load_config
+    from bench.errors import Location
+    from bench.lab import open_lab
+    from bench.procedure import load_procedure
+    from bench.record import RunRecorder, check_destination
+    from bench.runner import Runner
+    from bench.runner.progress import RichProgress
+
+    if args.realtime and not args.sim:
+        raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
+    procedure = load_procedure(args.procedure)
+    config = load_config(args.config)
+    missing = [n for n in procedure.instruments if n not in config.instruments]
+    if missing:
+        raise InputErrors([
+            InputError(f"instrument {n!r} is not in config {args.config} (has: {', '.join(config.instruments)})", procedure.instrument_locations.get(n, Location(procedure.path)), "instruments")
+            for n in missing
+        ])
+    check_destination(args.runs_dir, _estimate_bytes(procedure))
+
+    recorder = None
+    lab = None
+    runner: Runner | None = None
+
+    def traffic(name: str, direction: str, ftype: int, raw: bytes) -> None:
+        if recorder is not None and runner is not None:
+            recorder.event(direction, name, f"0x{ftype:02x}", t_s=lab.clock.now() if lab else 0.0, step=runner.current_step, data=raw)
+
+    recorder = RunRecorder.create(
+        args.runs_dir,
+        procedure_name=procedure.name,
+        procedure_text=procedure.text,
+        procedure_path=str(args.procedure),
+        config_text=config.text,
+        config_path=str(args.config),
+        mode="sim" if args.sim else "hardware",
+        software_version=__version__,
+        flush_interval_s=config.flush_interval_s,
+        **({"operator": args.operator} if args.operator else {}),
+    )
+    try:
+        lab = open_lab(config, procedure.instruments, sim=args.sim, realtime=args.realtime, on_traffic=traffic)
+    except BaseException as exc:
+        recorder.close("aborted", f"instruments could not be opened: {exc}")
+        raise
+    progress = RichProgress(console)
+    runner = Runner(procedure, lab, recorder, progress)
+    state = {"signals": 0}
+
+    def on_signal(signum: int, _frame) -> None:
+        state["signals"] += 1
+        name = signal.Signals(signum).name
+        if state["signals"] == 1:
+            runner.request_abort(f"{name} received (operator stop)")
+            console.print(f"[bold yellow]{name}: stopping; instruments go to their safe state, data is kept[/]")
+        else:
+            console.print(f"[yellow]{name} again: the safe-state sequence is running and will not be skipped[/]")
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        result = runner.run()
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        lab.close()
+    _print_summary(console, result, recorder.path, args.sim and not args.realtime)
+    return EXIT_OK if result.ok else EXIT_FAILED
+
+
+def _estimate_bytes(procedure) -> int:
+    """Rough run-file size: 38 float-ish values per sample at 1 kHz for the recording time, 8 B each."""
+    return int(procedure.estimated_duration_s() * 1000 * 20 * 8) + 1_000_000
+
+
+def _print_summary(console: Console, result, path: Path, virtual: bool) -> None:
+    colours = {"passed": "green", "done": "green", "failed": "red", "aborted": "red"}
+    t = Table(title="Steps", show_lines=False)
+    for col in ("#", "step", "type", "outcome", "detail"):
+        t.add_column(col)
+    for o in result.outcomes:
+        c = colours.get(o.outcome, "white")
+        t.add_row(str(o.index + 1), o.name, o.type, f"[{c}]{o.outcome}[/]", o.message)
+    console.print(t)
+    for name, rows in result.rows.items():
+        st = result.stream_stats.get(name, {})
+        console.print(f"stream {name}: {rows} rows; link: {st.get('crc_errors', 0)} CRC errors, {st.get('dropped_frames', 0)} dropped frames, {st.get('garbage_bytes', 0)} garbage bytes")
+    speed = f", {result.run_time_s / max(result.wall_time_s, 1e-9):.0f}x real time" if virtual else ""
+    console.print(f"run time {result.run_time_s:.1f} s in {result.wall_time_s:.2f} s wall{speed}")
+    console.print(f"run file: {path}")
+    if result.status == "aborted":
+        console.print(f"[bold red]ABORTED[/]: {result.abort_reason}")
+    elif result.failed_steps:
+        console.print(f"[bold red]FAILED[/]: {len(result.failed_steps)} step(s) failed: {', '.join(o.name for o in result.failed_steps)}")
+    else:
+        console.print("[bold green]COMPLETED[/]: all steps done, all checks passed")
+
+
+# ---- inspect ----------------------------------------------------------------------------------
+def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
+    from bench.record import read_run_summary, render_summary
+
+    summary = read_run_summary(args.run_file)
+    render_summary(summary, console, max_events=args.events)
+    return EXIT_OK
+
+
+# ---- sim serve --------------------------------------------------------------------------------
+def cmd_sim_serve(args: argparse.Namespace, console: Console) -> int:
+    from bench.clock import WallClock
+    from bench.config import load_config
+    from bench.sim.factory import build_devices
+    from bench.sim.pty_server import close_endpoints, open_endpoint, serve
+
+    config = load_config(args.config)
+    names = args.instrument or [n for n, i in config.instruments.items() if i.sim is not None]
+    unknown = [n for n in names if n not in config.instruments]
+    if unknown:
+        raise InputError(f"no instrument {unknown[0]!r} in {args.config} (has: {', '.join(config.instruments)})", None, "--instrument")
+    clock = WallClock()
+    try:
+        devices = build_devices(config, clock, names)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    endpoints = [open_endpoint(n, d) for n, d in devices.items()]
+    stop = {"flag": False}
+
+    def on_signal(signum: int, _frame) -> None:
+        stop["flag"] = True
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        for ep in endpoints:
+            print(f"{ep.name}: {ep.path}", flush=True)
+        print(f"serving {len(endpoints)} simulated instrument(s) on the wall clock; Ctrl-C to stop (pid {os.getpid()})", file=sys.stderr, flush=True)
+        serve(endpoints, clock, lambda: stop["flag"])
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        close_endpoints(endpoints)
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

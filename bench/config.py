@@ -1,0 +1,187 @@
+"""Lab configuration (``bench-config/1``): instruments, their ports, simulators and the world.
+
+Validated like procedures: every problem is a located one-line :class:`InputError`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.errors import InputError, InputErrors, Location
+from bench.model.imu_simple import ImuModelParams
+from bench.sim.world import WorldParams
+from bench.units import to_units
+from bench.yamlsrc import Fields, Node, load_yaml
+
+CONFIG_SCHEMA = "bench-config/1"
+SENSOR_MODEL_SCHEMA = "bench-sensor-model/1"
+DRIVERS = ("acs_board",)
+SIM_BACKENDS = ("acs_board",)
+
+
+@dataclass
+class SimConfig:
+    backend: str
+    seed: int = 0
+    serial: str = "SIM-0001"
+    bit_fail_mask: int = 0
+    model: ImuModelParams = field(default_factory=ImuModelParams)
+    model_path: str = ""
+
+
+@dataclass
+class InstrumentConfig:
+    name: str
+    driver: str
+    port: str
+    baudrate: int = 115200
+    timeout_s: float = 0.5
+    sim: SimConfig | None = None
+    location: Location | None = None
+
+
+@dataclass
+class LabConfig:
+    name: str
+    path: Path
+    text: str
+    world: WorldParams
+    instruments: dict[str, InstrumentConfig]
+    flush_interval_s: float = 1.0
+
+
+def load_config(path: str | Path) -> LabConfig:
+    """Read and validate a lab config; raises :class:`InputErrors` (an InputError) listing problems."""
+    src = load_yaml(path, "config")
+    errors: list[InputError] = []
+    top = Fields(src.root, "config", errors)
+    schema = top.get("schema", str, required=True)
+    if schema is not None and schema != CONFIG_SCHEMA:
+        errors.append(InputError(f"unsupported schema {schema!r}; expected {CONFIG_SCHEMA!r}", top.map["schema"].location, "schema"))
+    name = top.get("name", str, default=src.path.stem)
+    world = _world(top.node_at("world"), errors)
+    instruments: dict[str, InstrumentConfig] = {}
+    inode = top.node_at("instruments")
+    if inode is None or not isinstance(inode.value, dict) or not inode.value:
+        errors.append(InputError("expected a mapping of instrument names to settings", (inode or src.root).location, "instruments"))
+    else:
+        for iname, node in inode.value.items():
+            inst = _instrument(iname, node, src.path.parent, errors)
+            if inst is not None:
+                instruments[iname] = inst
+    flush = 1.0
+    rnode = top.node_at("recorder")
+    if rnode is not None:
+        rf = Fields(rnode, "recorder", errors)
+        fnode = rf.node_at("flush_interval")
+        if fnode is not None:
+            flush = _quantity(fnode, "s", "flush_interval", errors, 1.0)
+            if not 0 < flush <= 1.0:
+                errors.append(InputError("must be > 0 s and at most 1 s (data on disk at least once per second)", fnode.location, "flush_interval"))
+        rf.check_unknown()
+    top.check_unknown()
+    if errors:
+        raise InputErrors(errors)
+    return LabConfig(name, src.path, src.text, world, instruments, flush)
+
+
+def _quantity(node: Node, units: str, fname: str, errors: list[InputError], default: float) -> float:
+    try:
+        return to_units(node.value, units, node.location, fname)
+    except InputError as exc:
+        errors.append(exc)
+        return default
+
+
+def _world(node: Node | None, errors: list[InputError]) -> WorldParams:
+    p = WorldParams()
+    if node is None:
+        return p
+    f = Fields(node, "world", errors)
+    if (n := f.node_at("ambient_temp")) is not None:
+        p.ambient_temp_c = _quantity(n, "degC", "ambient_temp", errors, p.ambient_temp_c)
+    if (n := f.node_at("latitude")) is not None:
+        p.latitude_deg = _quantity(n, "deg", "latitude", errors, p.latitude_deg)
+        if not -90 <= p.latitude_deg <= 90:
+            errors.append(InputError("latitude must be within -90..90 deg", n.location, "latitude"))
+    if (n := f.node_at("magnetic_field")) is not None:
+        if not isinstance(n.value, list) or len(n.value) != 3:
+            errors.append(InputError("expected three components [north, west, up] such as [23.6 uT, 0 uT, -42 uT]", n.location, "magnetic_field"))
+        else:
+            p.field_ut = [_quantity(c, "uT", "magnetic_field", errors, 0.0) for c in n.value]
+    f.check_unknown()
+    return p
+
+
+def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> InstrumentConfig | None:
+    before = len(errors)
+    f = Fields(node, f"instrument {name!r}", errors)
+    driver = f.get("driver", str, required=True)
+    if driver is not None and driver not in DRIVERS:
+        errors.append(InputError(f"unknown driver {driver!r} (available: {', '.join(DRIVERS)})", f.map["driver"].location, "driver"))
+    port = f.get("port", str, required=True)
+    baud = f.get("baudrate", int, default=115200)
+    if baud is not None and not 300 <= baud <= 4_000_000:
+        errors.append(InputError("expected a baud rate between 300 and 4000000", f.map["baudrate"].location, "baudrate"))
+    timeout = 0.5
+    if (n := f.node_at("timeout")) is not None:
+        timeout = _quantity(n, "s", "timeout", errors, 0.5)
+        if not 0 < timeout <= 60:
+            errors.append(InputError("expected a timeout between 0 and 60 s", n.location, "timeout"))
+    sim = None
+    if (n := f.node_at("sim")) is not None:
+        sim = _sim(name, n, base, errors)
+    f.check_unknown()
+    if len(errors) > before:
+        return None
+    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location)
+
+
+def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConfig | None:
+    f = Fields(node, f"instrument {name!r} sim", errors)
+    backend = f.get("backend", str, required=True)
+    if backend is not None and backend not in SIM_BACKENDS:
+        errors.append(InputError(f"unknown simulator backend {backend!r} (available: {', '.join(SIM_BACKENDS)})", f.map["backend"].location, "backend"))
+    sim = SimConfig(backend or "")
+    sim.seed = f.get("seed", int, default=0)
+    sim.serial = f.get("serial", str, default=sim.serial)
+    sim.bit_fail_mask = f.get("bit_fail_mask", int, default=0)
+    model_rel = f.get("sensor_model", str)
+    if model_rel is not None:
+        sim.model_path = str(base / model_rel)
+        sim.model = _sensor_model(base / model_rel, f.map["sensor_model"].location, errors)
+    f.check_unknown()
+    return sim
+
+
+def _sensor_model(path: Path, ref: Location, errors: list[InputError]) -> ImuModelParams:
+    try:
+        src = load_yaml(path, "sensor model")
+    except InputError as exc:
+        errors.append(InputError(f"sensor model {path}: {exc.message}", exc.location if exc.location and exc.location.line else ref, "sensor_model"))
+        return ImuModelParams()
+    data: dict[str, Any] = src.root.plain()
+    if data.pop("schema", None) != SENSOR_MODEL_SCHEMA:
+        errors.append(InputError(f"expected schema: {SENSOR_MODEL_SCHEMA}", src.root.location, "schema"))
+    if data.pop("model", None) != "imu_simple":
+        errors.append(InputError("expected model: imu_simple", src.root.location, "model"))
+    try:
+        params = ImuModelParams.from_dict(data)
+    except KeyError as exc:
+        key = str(exc.args[0]).split(",")[0]
+        loc = src.root.key_locations.get(key, src.root.location)
+        errors.append(InputError(f"unknown sensor-model parameter(s): {exc.args[0]}", loc, key))
+        return ImuModelParams()
+    for key, expected_len in (("gyro_bias_dps", 3), ("warmup_amplitude_dps", 3), ("warmup_settling_s", 3), ("accel_bias_g", 3), ("mag_bias_ut", 3)):
+        value = getattr(params, key)
+        if not isinstance(value, list) or len(value) != expected_len or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+            errors.append(InputError(f"expected a list of {expected_len} numbers", src.root.key_locations.get(key, src.root.location), key))
+    for key in ("gyro_noise_density_dps_rthz", "accel_noise_density_g_rthz", "mag_noise_rms_ut", "lowpass_cutoff_hz"):
+        value = getattr(params, key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+            errors.append(InputError("expected a non-negative number", src.root.key_locations.get(key, src.root.location), key))
+    if not isinstance(params.gyro_bias_poly_degc, list) or not all(isinstance(x, (int, float)) for x in params.gyro_bias_poly_degc):
+        errors.append(InputError("expected a list of polynomial coefficients (ascending powers)", src.root.key_locations.get("gyro_bias_poly_degc", src.root.location), "gyro_bias_poly_degc"))
+    return params

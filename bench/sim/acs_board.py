@@ -1,0 +1,250 @@
+"""Simulated ACS/sensor board: answers the ACS protocol byte for byte, data from the sensor model.
+
+The simulator is clock-driven and lazy: :meth:`AcsBoardSim.advance` produces, in one vectorised
+batch, every data frame the board would have sent up to a run time, so a virtual clock can jump an
+hour ahead and the data is the same as if it had been produced in real time. Commands are handled
+when they arrive (:meth:`receive`), after the data frames that precede them in time.
+
+Behaviour (``docs/acs-board-protocol.md``): the board powers up with sensors off, not streaming,
+100 Hz output data rate and moving-average length 1. The moving-average buffer is pre-filled with
+the first sample after sensor power-on or a length change (ESTCube-2 thesis section 3.3).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench import __version__
+from bench.model.imu_simple import SimpleImuModel
+from bench.sim.world import World
+from drivers import acs_protocol as proto
+from drivers.acs_protocol import FrameType, NakCode, Status
+
+BOARD_TIME_WRAP = 2**32
+
+
+@dataclass
+class AcsBoardIdentity:
+    vendor: str = "bench-sim"
+    model: str = "ACS-IMU (simulated MPU-6000 + LIS3MDL)"
+    serial: str = "SIM-0001"
+    firmware: str = f"sim-{__version__}"
+
+
+class AcsBoardSim:
+    """The board: protocol state machine plus sensor sampling. Thread-safe (one lock)."""
+
+    def __init__(
+        self,
+        clock,
+        world: World,
+        model: SimpleImuModel,
+        identity: AcsBoardIdentity | None = None,
+        baudrate: int = 115200,
+        bit_fail_mask: int = 0,
+    ):
+        self.clock = clock
+        self.world = world
+        self.model = model
+        self.identity = identity or AcsBoardIdentity()
+        self.baudrate = baudrate
+        self.bit_fail_mask = bit_fail_mask
+        self._lock = threading.RLock()
+        self._decoder = proto.FrameDecoder()
+        self._out = bytearray()
+        self.sensor_power = False
+        self.power_on_t = 0.0
+        self.streaming = False
+        self.odr_hz = 100
+        self.moving_avg_n = 1
+        self._history: np.ndarray | None = None  # last N-1 raw samples (rows, 9)
+        self._stream_t0 = 0.0
+        self._next_k = 0
+        self._counter = 0
+        self._bit_failed = False
+        self.frames_sent = 0
+
+    # ---- link -------------------------------------------------------------------------------
+    def max_odr_hz(self) -> int:
+        """Highest output data rate the UART can carry: 8N1 = 10 bits per byte, 38-byte frames."""
+        return int(self.baudrate / 10 // proto.DATA_FRAME_LEN)
+
+    def set_baudrate(self, baudrate: int) -> None:
+        with self._lock:
+            self.baudrate = int(baudrate)
+
+    # ---- host -> board ----------------------------------------------------------------------
+    def receive(self, data: bytes) -> None:
+        """Bytes written by the host at the current clock time."""
+        with self._lock:
+            self._advance_locked(self.clock.now())
+            batch = self._decoder.feed(bytes(data))
+            if batch.crc_errors:
+                for _ in range(batch.crc_errors):
+                    self._nak(0, NakCode.CRC_ERROR)
+            for ftype, payload in batch.replies:
+                self._handle(ftype, payload)
+
+    def _reply(self, ftype: int, payload: bytes = b"") -> None:
+        self._out += proto.encode_frame(ftype, payload)
+
+    def _nak(self, command: int, code: int) -> None:
+        self._reply(FrameType.NAK, bytes([command & 0xFF, int(code)]))
+
+    def _handle(self, ftype: int, payload: bytes) -> None:
+        expected_len = {
+            FrameType.IDENTIFY: 0, FrameType.START_STREAM: 0, FrameType.STOP_STREAM: 0,
+            FrameType.SET_ODR: 2, FrameType.SET_MOVING_AVG: 1, FrameType.RUN_BIT: 0,
+            FrameType.SENSOR_POWER: 1, FrameType.GET_CONFIG: 0,
+        }
+        if ftype not in expected_len:
+            self._nak(ftype, NakCode.UNKNOWN_COMMAND)
+            return
+        if len(payload) != expected_len[ftype]:
+            self._nak(ftype, NakCode.BAD_LENGTH)
+            return
+        ack = ftype | 0x80
+        now = self.clock.now()
+        if ftype == FrameType.IDENTIFY:
+            i = self.identity
+            self._reply(ack, f"{i.vendor};{i.model};{i.serial};{i.firmware}".encode("ascii", "replace"))
+        elif ftype == FrameType.START_STREAM:
+            if not self.sensor_power:
+                self._nak(ftype, NakCode.NOT_ALLOWED_IN_STATE)
+                return
+            if not self.streaming:
+                self.streaming = True
+                self._stream_t0 = now
+                self._next_k = 1  # first sample one period after the command
+            self._reply(ack)
+        elif ftype == FrameType.STOP_STREAM:
+            self.streaming = False
+            self._reply(ack)
+        elif ftype == FrameType.SET_ODR:
+            (hz,) = struct.unpack("<H", payload)
+            if hz < 1 or hz > min(1000, self.max_odr_hz()):  # MPU-6000 ODR range 4..1000 Hz (ESTCube Table 2.1)
+                self._nak(ftype, NakCode.BAD_VALUE)
+                return
+            if self.streaming:
+                self._stream_t0 = self._stream_t0 + (self._next_k - 1) / self.odr_hz
+                self._next_k = 1
+            self.odr_hz = hz
+            self._reply(ack)
+        elif ftype == FrameType.SET_MOVING_AVG:
+            n = payload[0]
+            if not 1 <= n <= 100:  # ESTCube-2 section 3.3 swept N = 1..100
+                self._nak(ftype, NakCode.BAD_VALUE)
+                return
+            self.moving_avg_n = n
+            self._history = None  # re-filled with the next sample
+            self._reply(ack)
+        elif ftype == FrameType.RUN_BIT:
+            if not self.sensor_power:
+                self._nak(ftype, NakCode.NOT_ALLOWED_IN_STATE)
+                return
+            self._bit_failed = self.bit_fail_mask != 0
+            self._reply(ack, struct.pack("<H", self.bit_fail_mask))
+        elif ftype == FrameType.SENSOR_POWER:
+            on = payload[0]
+            if on not in (0, 1):
+                self._nak(ftype, NakCode.BAD_VALUE)
+                return
+            if on and not self.sensor_power:
+                self.power_on_t = now
+                self._history = None
+            if not on:
+                self.streaming = False
+            self.sensor_power = bool(on)
+            self._reply(ack)
+        elif ftype == FrameType.GET_CONFIG:
+            self._reply(
+                ack,
+                struct.pack("<HBBBI", self.odr_hz, self.moving_avg_n, int(self.streaming), int(self.sensor_power), self.baudrate),
+            )
+
+    # ---- board -> host ----------------------------------------------------------------------
+    def advance(self, t_s: float) -> None:
+        """Produce every data frame with a sample time <= ``t_s`` (run time, s)."""
+        with self._lock:
+            self._advance_locked(t_s)
+
+    def _advance_locked(self, t_s: float) -> None:
+        if not self.streaming:
+            return
+        period = 1.0 / self.odr_hz
+        last_k = math.floor((t_s - self._stream_t0) * self.odr_hz + 1e-9)
+        n = last_k - self._next_k + 1
+        if n <= 0:
+            return
+        k = np.arange(self._next_k, last_k + 1, dtype=np.float64)
+        self._next_k = last_k + 1
+        t = self._stream_t0 + k * period
+        self._out += self._frames(t)
+
+    def _frames(self, t: np.ndarray) -> bytes:
+        n = t.shape[0]
+        temp = self.world.unit_temperature_c(t)
+        env = self.world.environment(t)
+        gyro, accel, mag = self.model.sample(t - self.power_on_t, temp, env, self.odr_hz)
+        raw = np.concatenate([gyro, accel, mag], axis=1)
+        raw = self._moving_average(raw)
+        temps = np.repeat(temp[:, None], 3, axis=1)
+        gyro_raw, accel_raw, mag_raw, temp_raw, saturated = proto.physical_to_raw(raw[:, 0:3], raw[:, 3:6], raw[:, 6:9], temps)
+        status = np.full(n, int(Status.STREAMING | Status.SENSOR_POWER), dtype=np.uint16)
+        if self._bit_failed:
+            status |= np.uint16(Status.BIT_FAILED)
+        status[np.asarray(saturated, dtype=bool)] |= np.uint16(Status.SATURATED)
+        counter = ((self._counter + np.arange(n)) % 65536).astype(np.uint16)
+        self._counter = (self._counter + n) % 65536
+        board_us = (np.round(t * 1e6).astype(np.int64) % BOARD_TIME_WRAP).astype(np.uint32)
+        self.frames_sent += n
+        return proto.encode_data_frames(counter, board_us, gyro_raw, accel_raw, mag_raw, temp_raw, status)
+
+    def _moving_average(self, raw: np.ndarray) -> np.ndarray:
+        """N-sample boxcar over consecutive samples, buffer pre-filled with the first sample."""
+        n_avg = self.moving_avg_n
+        if n_avg == 1:
+            return raw
+        if self._history is None:
+            self._history = np.repeat(raw[:1], n_avg - 1, axis=0)
+        full = np.concatenate([self._history, raw], axis=0)
+        csum = np.cumsum(np.concatenate([np.zeros((1, raw.shape[1])), full], axis=0), axis=0)
+        out = (csum[n_avg:] - csum[:-n_avg])[-raw.shape[0]:] / n_avg
+        self._history = full[-(n_avg - 1):]
+        return out
+
+    def take_output(self, t_s: float, max_bytes: int | None = None) -> bytes:
+        """Advance to ``t_s`` and remove up to ``max_bytes`` of pending output."""
+        with self._lock:
+            self._advance_locked(t_s)
+            if max_bytes is None or max_bytes >= len(self._out):
+                data = bytes(self._out)
+                self._out.clear()
+            else:
+                data = bytes(self._out[:max_bytes])
+                del self._out[:max_bytes]
+            return data
+
+    def pending_bytes(self, t_s: float) -> int:
+        with self._lock:
+            self._advance_locked(t_s)
+            return len(self._out)
+
+    def next_output_time(self) -> float | None:
+        """Run time (s) of the next data frame, or None when nothing more will come unasked."""
+        with self._lock:
+            if self._out:
+                return self.clock.now()
+            if not self.streaming:
+                return None
+            return self._stream_t0 + self._next_k / self.odr_hz
+
+    def discard_input(self) -> None:
+        """Forget partial command bytes (host reset its output buffer / reopened the port)."""
+        with self._lock:
+            self._decoder = proto.FrameDecoder()

@@ -1,0 +1,54 @@
+"""Quantities with units, parsed by pint (never by hand).
+
+Procedures and configs write "30 min", "100 Hz", "-29 degC", "1e-5 Torr". :func:`to_units` turns
+such a value into a float in the unit the code works in, or raises an :class:`InputError` saying
+what was expected.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import pint
+
+from bench.errors import InputError, Location
+
+
+@functools.lru_cache(maxsize=1)
+def registry() -> pint.UnitRegistry:
+    """The one pint registry of the application (offset units like degC allowed as plain values)."""
+    ureg = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
+    ureg.define("Torr = atm / 760")  # vacuum gauges report Torr; pint only knows 'torr'
+    return ureg
+
+
+def to_units(value: Any, units: str, location: Location | None = None, field: str | None = None) -> float:
+    """Convert ``value`` ("30 min", "100 Hz", a bare number meaning ``units``) to a float in ``units``.
+
+    Raises :class:`InputError` for text that is not a quantity or has the wrong dimension.
+    """
+    if isinstance(value, bool):
+        raise InputError(f"expected a quantity in {units}, got {value!r}", location, field)
+    if isinstance(value, (int, float)):
+        return float(value)
+    if not isinstance(value, str):
+        raise InputError(f"expected a quantity in {units} such as '10 {units}', got {value!r}", location, field)
+    ureg = registry()
+    try:
+        q = ureg.Quantity(value.strip())
+    except (pint.errors.PintError, ValueError, AttributeError, TypeError, SyntaxError, KeyError) as exc:
+        raise InputError(f"cannot read quantity {value!r}: {_short(exc)}", location, field) from None
+    if not isinstance(q, pint.Quantity):  # a bare number in a string
+        return float(q)
+    try:
+        return float(q.to(units).magnitude)
+    except pint.errors.DimensionalityError:
+        raise InputError(
+            f"{value!r} has units of {q.dimensionality}, expected a quantity convertible to {units}", location, field
+        ) from None
+
+
+def _short(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

@@ -1,0 +1,182 @@
+"""YAML loading that remembers where every value came from (file:line:column).
+
+Procedures and configs are validated against their schema with errors located in the source
+file, so the loader keeps a :class:`Node` per value. Loading uses PyYAML's safe composer: no tags,
+no Python objects, nothing executes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import yaml
+
+from bench.errors import InputError, Location
+
+
+@dataclass
+class Node:
+    """A YAML value with its location. ``value`` is a str/int/float/bool/None, list[Node] or dict[str, Node]."""
+
+    value: Any
+    location: Location
+    key_locations: dict[str, Location] = field(default_factory=dict)
+
+    def plain(self) -> Any:
+        """The value with all nested Nodes unwrapped to plain Python."""
+        if isinstance(self.value, list):
+            return [n.plain() for n in self.value]
+        if isinstance(self.value, dict):
+            return {k: n.plain() for k, n in self.value.items()}
+        return self.value
+
+
+@dataclass
+class Source:
+    """A loaded YAML document: its path, exact text and root node."""
+
+    path: Path
+    text: str
+    root: Node
+
+
+def _loc(path: str, mark: yaml.Mark) -> Location:
+    return Location(path, mark.line + 1, mark.column + 1)
+
+
+_SAFE = yaml.SafeLoader
+
+
+def _convert(node: yaml.Node, path: str) -> Node:
+    loc = _loc(path, node.start_mark)
+    if isinstance(node, yaml.ScalarNode):
+        # Resolve the scalar the way SafeLoader would (int, float, bool, null, str).
+        loader = _SAFE("")
+        try:
+            value = loader.construct_object(node, deep=True)
+        except yaml.YAMLError as exc:
+            raise InputError(f"cannot read value: {exc}", loc) from None
+        finally:
+            loader.dispose()
+        if not isinstance(value, (str, int, float, bool, type(None))):
+            value = str(node.value)  # timestamps, binary: keep the text, schema decides
+        return Node(value, loc)
+    if isinstance(node, yaml.SequenceNode):
+        return Node([_convert(n, path) for n in node.value], loc)
+    if isinstance(node, yaml.MappingNode):
+        out: dict[str, Node] = {}
+        keys: dict[str, Location] = {}
+        for key_node, value_node in node.value:
+            kloc = _loc(path, key_node.start_mark)
+            if not isinstance(key_node, yaml.ScalarNode):
+                raise InputError("mapping keys must be plain names", kloc)
+            key = str(key_node.value)
+            if key in out:
+                raise InputError(f"duplicate key {key!r} (first at line {keys[key].line})", kloc, key)
+            out[key] = _convert(value_node, path)
+            keys[key] = kloc
+        return Node(out, loc, keys)
+    raise InputError("unsupported YAML node", loc)
+
+
+def load_yaml(path: str | Path, what: str = "file") -> Source:
+    """Read and parse ``path``; any problem is an :class:`InputError` located in the file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{what} not found", Location(p)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read {what}: {exc}", Location(p)) from None
+    return parse_yaml(text, str(p), what)
+
+
+def parse_yaml(text: str, path: str, what: str = "file") -> Source:
+    """Parse YAML ``text`` (from ``path``, used in messages) into a located :class:`Node` tree."""
+    try:
+        nodes = list(yaml.compose_all(text, Loader=_SAFE))
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        loc = _loc(path, mark) if mark else Location(path)
+        raise InputError(f"not valid YAML: {exc.problem or exc.context}", loc) from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"not valid YAML: {exc}", Location(path)) from None
+    if len(nodes) != 1 or nodes[0] is None:
+        raise InputError(f"expected exactly one YAML document in the {what}", Location(path, 1, 1))
+    root = _convert(nodes[0], path)
+    if not isinstance(root.value, dict):
+        raise InputError(f"the {what} must be a mapping at top level", root.location)
+    return Source(Path(path), text, root)
+
+
+class Fields:
+    """Typed, located access to a mapping node; collects unknown-key errors.
+
+    >>> f = Fields(node, "configure step")  # doctest: +SKIP
+    >>> f.required("instrument", str)        # doctest: +SKIP
+    """
+
+    def __init__(self, node: Node, what: str, errors: list[InputError]):
+        self.node = node
+        self.what = what
+        self.errors = errors
+        if not isinstance(node.value, dict):
+            errors.append(InputError(f"{what} must be a mapping", node.location))
+            self.map: dict[str, Node] = {}
+        else:
+            self.map = node.value
+        self.used: set[str] = set()
+
+    def key_location(self, key: str) -> Location:
+        return self.node.key_locations.get(key, self.node.location)
+
+    def get(self, key: str, types: type | tuple[type, ...], default: Any = None, required: bool = False) -> Any:
+        """The plain value at ``key`` if it has one of ``types``; else record an error and return ``default``."""
+        self.used.add(key)
+        if key not in self.map:
+            if required:
+                self.errors.append(InputError(f"missing required field in {self.what}", self.node.location, key))
+            return default
+        n = self.map[key]
+        value = n.value
+        if isinstance(value, bool) and bool not in (types if isinstance(types, tuple) else (types,)):
+            ok = False
+        else:
+            ok = isinstance(value, types) if not isinstance(value, (list, dict)) else (
+                (list in _as_tuple(types) and isinstance(value, list)) or (dict in _as_tuple(types) and isinstance(value, dict))
+            )
+        if not ok:
+            names = " or ".join(t.__name__ for t in _as_tuple(types))
+            self.errors.append(InputError(f"expected {names}, got {_describe(value)}", n.location, key))
+            return default
+        return n.plain() if isinstance(value, (list, dict)) else value
+
+    def node_at(self, key: str) -> Node | None:
+        self.used.add(key)
+        return self.map.get(key)
+
+    def check_unknown(self, allowed_extra: Iterator[str] = ()) -> None:
+        """Record an error for each key nobody asked for."""
+        known = self.used | set(allowed_extra)
+        for key in self.map:
+            if key not in known:
+                expected = ", ".join(sorted(self.used)) or "no fields"
+                self.errors.append(
+                    InputError(f"unknown field in {self.what} (expected one of: {expected})", self.key_location(key), key)
+                )
+
+
+def _as_tuple(types: type | tuple[type, ...]) -> tuple[type, ...]:
+    return types if isinstance(types, tuple) else (types,)
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "a mapping"
+    if value is None:
+        return "nothing"
+    return f"{type(value).__name__} {value!r}"

@@ -1,0 +1,66 @@
+#!/usr/bin/env python3
+"""Set up and run bench with one command (needs only python3 >= 3.11 and the package index).
+
+    python3 dev.py dryrun   # create .venv if needed, install, dry-run the startup profile
+    python3 dev.py test     # create .venv if needed, install, run the whole test suite
+
+Extra arguments go to ``bench run`` (dryrun) or to pytest (test). The environment is reinstalled
+only when ``pyproject.toml`` changes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = ROOT / ".venv"
+STAMP = VENV / ".bench-install-stamp"
+BIN = VENV / ("Scripts" if os.name == "nt" else "bin")
+PY = BIN / ("python.exe" if os.name == "nt" else "python")
+
+DRYRUN = ["run", "procedures/startup_profile.yaml", "--config", "configs/sim.yaml", "--sim"]
+
+
+def _say(text: str) -> None:
+    print(f"[dev.py] {text}", flush=True)
+
+
+def ensure_env() -> None:
+    """Create the virtual environment and install bench with its test extras when needed."""
+    if sys.version_info < (3, 11):
+        sys.exit(f"[dev.py] bench needs Python >= 3.11, this is {sys.version.split()[0]}")
+    if not PY.exists():
+        _say(f"creating virtual environment in {VENV}")
+        result = subprocess.run([sys.executable, "-m", "venv", str(VENV)])
+        if result.returncode != 0 or not PY.exists():
+            sys.exit("[dev.py] could not create a virtual environment; on Debian/Ubuntu install the 'python3-venv' package")
+    want = hashlib.sha256((ROOT / "pyproject.toml").read_bytes()).hexdigest()
+    if STAMP.exists() and STAMP.read_text().strip() == want:
+        return
+    _say("installing bench and its dependencies into .venv (once; again when pyproject.toml changes)")
+    cmd = [str(PY), "-m", "pip", "install", "--disable-pip-version-check", "-q", "-e", f"{ROOT}[test]"]
+    if subprocess.run(cmd, cwd=ROOT).returncode != 0:
+        sys.exit("[dev.py] installing dependencies failed (see the pip output above)")
+    STAMP.write_text(want + "\n")
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] not in ("dryrun", "test"):
+        print(__doc__)
+        return 2
+    ensure_env()
+    os.chdir(ROOT)
+    if argv[0] == "dryrun":
+        cmd = [str(PY), "-m", "bench", *DRYRUN, *argv[1:]]
+    else:
+        cmd = [str(PY), "-m", "pytest", *argv[1:]]
+    _say(" ".join(cmd[2:] if argv[0] == "dryrun" else cmd[1:]))
+    return subprocess.run(cmd).returncode
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
