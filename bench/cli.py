@@ -101,6 +101,7 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     from bench.record import RunRecorder, check_destination
     from bench.runner import Runner
     from bench.runner.progress import RichProgress
+    from drivers.acs_protocol import frame_name
 
     if args.realtime and not args.sim:
         raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
@@ -120,7 +121,7 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
 
     def traffic(name: str, direction: str, ftype: int, raw: bytes) -> None:
         if recorder is not None and runner is not None:
-            recorder.event(direction, name, f"0x{ftype:02x}", t_s=lab.clock.now() if lab else 0.0, step=runner.current_step, data=raw)
+            recorder.event(direction, name, frame_name(ftype), t_s=lab.clock.now() if lab else 0.0, step=runner.current_step, data=raw)
 
     recorder = RunRecorder.create(
         args.runs_dir,

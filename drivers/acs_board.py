@@ -164,7 +164,8 @@ class AcsBoard:
                             cmd, code = proto.parse_nak(rpayload)
                             if code == NakCode.NOT_ALLOWED_IN_STATE:
                                 raise DeviceFault(f"acs_board refused {name}: not allowed in its current state")
-                            raise ProtocolError(f"acs_board refused {name}: {NakCode(code).name if code in NakCode._value2member_map_ else code}")
+                            reason = NakCode(code).name if code in NakCode._value2member_map_ else f"code {code}"
+                            raise ProtocolError(f"acs_board refused {name}: {reason}")
                         return rpayload
             if attempt + 1 < attempts:
                 continue

@@ -47,7 +47,7 @@ class Progress(Protocol):
 
     def message(self, text: str) -> None: ...
 
-    def stop(self) -> None: ...
+    def stop(self, run_time_s: float) -> None: ...
 
 
 @dataclass
@@ -153,7 +153,7 @@ class Runner:
             self.abort_reason = self.abort_reason or _describe(exc)
             self._abort_path()
         finally:
-            self.progress.stop()
+            self.progress.stop(self.clock.now())
         run_time = self.clock.now()
         self._close(status)
         rows = {name: self.rec.rows_written(key) for name, key in self.stream_keys.items()}
@@ -251,7 +251,11 @@ class Runner:
             drv.set_moving_average(int(step.params["moving_average"]))
             done.append(f"moving average N={int(step.params['moving_average'])}")
         cfg = drv.get_config()
-        return "done", ", ".join(done) + f" (board reports {cfg})"
+        if "odr" in step.params and cfg["odr_hz"] != int(round(step.params["odr"])) or (
+            "moving_average" in step.params and cfg["moving_avg_n"] != int(step.params["moving_average"])
+        ):
+            return "failed", ", ".join(done) + f" requested, but the board reports odr {cfg['odr_hz']} Hz, N={cfg['moving_avg_n']}"
+        return "done", ", ".join(done) + " (read back from the board)"
 
     def _wait(self, step: Step) -> tuple[str, str]:
         self._sleep_checked(self.clock.now() + step.params["duration"], [])

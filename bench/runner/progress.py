@@ -67,7 +67,7 @@ class RichProgress:
     def message(self, text: str) -> None:
         self._progress.console.print(text)
 
-    def stop(self) -> None:
+    def stop(self, run_time_s: float) -> None:
         if self._task is not None:
-            self._progress.update(self._task, stepinfo=self._stepinfo)
+            self._update(run_time_s, "", force=True)
         self._progress.stop()

@@ -31,7 +31,7 @@ BOARD_TIME_WRAP = 2**32
 @dataclass
 class AcsBoardIdentity:
     vendor: str = "bench-sim"
-    model: str = "ACS-IMU (simulated MPU-6000 + LIS3MDL)"
+    model: str = "ACS-IMU sim MPU-6000+LIS3MDL"
     serial: str = "SIM-0001"
     firmware: str = f"sim-{__version__}"
 
@@ -55,7 +55,7 @@ class AcsBoardSim:
         self.baudrate = baudrate
         self.bit_fail_mask = bit_fail_mask
         self._lock = threading.RLock()
-        self._decoder = proto.FrameDecoder()
+        self._decoder = proto.FrameDecoder(accept_unknown_types=True)
         self._out = bytearray()
         self.sensor_power = False
         self.power_on_t = 0.0
@@ -112,7 +112,7 @@ class AcsBoardSim:
         now = self.clock.now()
         if ftype == FrameType.IDENTIFY:
             i = self.identity
-            self._reply(ack, f"{i.vendor};{i.model};{i.serial};{i.firmware}".encode("ascii", "replace"))
+            self._reply(ack, f"{i.vendor};{i.model};{i.serial};{i.firmware}".encode("ascii", "replace")[: proto.MAX_PAYLOAD])
         elif ftype == FrameType.START_STREAM:
             if not self.sensor_power:
                 self._nak(ftype, NakCode.NOT_ALLOWED_IN_STATE)
@@ -164,7 +164,7 @@ class AcsBoardSim:
         elif ftype == FrameType.GET_CONFIG:
             self._reply(
                 ack,
-                struct.pack("<HBBBI", self.odr_hz, self.moving_avg_n, int(self.streaming), int(self.sensor_power), self.baudrate),
+                proto.encode_config(self.odr_hz, self.moving_avg_n, self.streaming, self.sensor_power, self.baudrate),
             )
 
     # ---- board -> host ----------------------------------------------------------------------
@@ -247,4 +247,4 @@ class AcsBoardSim:
     def discard_input(self) -> None:
         """Forget partial command bytes (host reset its output buffer / reopened the port)."""
         with self._lock:
-            self._decoder = proto.FrameDecoder()
+            self._decoder = proto.FrameDecoder(accept_unknown_types=True)

@@ -1,0 +1,474 @@
+"""Read run files written by :mod:`bench.record.writer`, also while they are being written.
+
+A file being written is opened as an HDF5 SWMR reader; a file that was never switched to SWMR mode
+is opened without file locking. Anything that is not a readable bench run file (missing, empty,
+truncated, corrupted, another HDF5 file) raises :class:`InputError`
+``"<path>: not a readable bench run file: <reason>"``; h5py exceptions never leak out.
+
+Units: run times in s since the start of the run, wall times in s since the Unix epoch, rates in Hz.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterator
+
+import h5py
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+from rich.text import Text
+
+from bench.errors import InputError
+from bench.record.writer import EVENT_DTYPE, FORMAT_VERSION
+
+STALE_AFTER_S = 10.0
+"""A ``running`` file whose heartbeat is at least this old (s of wall time) reads as ``crashed``."""
+
+LOCK_WAIT_S = 2.0
+"""How long (s) to retry while the writer holds the file lock (setting up, or finalising its status)."""
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_EVENT_FIELDS = set(EVENT_DTYPE.names or ())
+
+
+@dataclass
+class StreamSummary:
+    """One stream: ``columns`` maps name → units (``time`` excluded, always s), ``shapes`` name →
+    per-row shape; ``rows`` complete rows; first/last run time (s); mean rate (Hz) over the span."""
+
+    key: str
+    columns: dict[str, str]
+    shapes: dict[str, tuple[int, ...]]
+    rows: int
+    t_start_s: float | None
+    t_end_s: float | None
+    rate_hz: float | None
+
+
+@dataclass
+class EventRow:
+    """One row of ``/events``: run time ``t_s`` (s), ``wall_unix`` (s), message decoded, raw ``data``."""
+
+    t_s: float
+    wall_unix: float
+    kind: str
+    source: str
+    step: int
+    message: str
+    data: bytes
+
+
+@dataclass
+class StepSummary:
+    """One executed step (0-based ``index``) from its step_start/step_end events.
+
+    ``outcome`` is the first word of the step_end message (passed | failed | aborted | done), or
+    ``interrupted`` when the step never ended (``running`` while the run is still being written).
+    """
+
+    index: int
+    name: str
+    outcome: str
+    t_start_s: float | None
+    t_end_s: float | None
+    type: str = ""
+    detail: str = ""
+
+    @property
+    def duration_s(self) -> float | None:
+        """Run time (s) from start to end, None if either is unknown."""
+        if self.t_start_s is None or self.t_end_s is None:
+            return None
+        return self.t_end_s - self.t_start_s
+
+
+@dataclass
+class RunSummary:
+    """Everything about a run except the stream data.
+
+    ``status`` is inferred: the file's status attribute, except that a ``running`` file whose
+    heartbeat is stale reads as ``crashed`` (``status_detail`` says since when).
+    """
+
+    path: Path
+    attrs: dict[str, Any]
+    status: str
+    procedure_text: str
+    config_text: str
+    instruments: dict[str, dict[str, str]]
+    streams: list[StreamSummary]
+    steps: list[StepSummary]
+    events: list[EventRow]
+    abort_reason: str
+    status_detail: str = ""
+    heartbeat_unix: float | None = None
+    heartbeat_run_time_s: float | None = None
+    event_counts: dict[str, int] = field(default_factory=dict)
+
+
+def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_unix: float | None = None) -> RunSummary:
+    """Summarise the run file at ``path`` (complete, aborted, crashed or still being written).
+
+    ``stale_after_s`` (s) is the heartbeat age from which a ``running`` file is reported as
+    ``crashed``; ``now_unix`` (s since epoch) defaults to the current time.
+    Raises :class:`InputError` if the file is not a readable bench run file or is of a newer format.
+    """
+    path = Path(path)
+    with _open_run(path) as f:
+        try:
+            return _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix)
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - corrupted files make h5py/numpy raise anything
+            raise _unreadable(path, _describe(exc)) from None
+
+
+def read_stream(path: Path, stream_key: str) -> dict[str, np.ndarray]:
+    """All rows of stream ``stream_key``: ``time`` (run time, s) and every column, each cut to the
+    number of rows complete in every dataset. Raises :class:`InputError` for an unknown stream."""
+    path = Path(path)
+    with _open_run(path) as f:
+        try:
+            groups = _stream_groups(f)
+            if stream_key not in groups:
+                raise InputError(f"{path}: no stream {stream_key!r} (streams: {', '.join(groups) or 'none'})")
+            g = groups[stream_key]
+            names = _column_order(g)
+            rows = min(int(g[n].shape[0]) for n in names)
+            return {n: np.asarray(g[n][:rows]) for n in names}
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            raise _unreadable(path, _describe(exc)) from None
+
+
+# ---- opening ------------------------------------------------------------------------------------
+@contextmanager
+def _open_run(path: Path) -> Iterator[h5py.File]:
+    f = _open_h5(path)
+    try:
+        _check_format(path, f)
+        yield f
+    finally:
+        try:
+            f.close()
+        except Exception:  # noqa: BLE001 - closing a read-only handle of a damaged file
+            pass
+
+
+def _open_h5(path: Path) -> h5py.File:
+    try:
+        if not path.exists():
+            raise _unreadable(path, "no such file")
+        if path.is_dir():
+            raise _unreadable(path, "it is a directory")
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError as exc:
+        raise _unreadable(path, exc.strerror or str(exc)) from None
+    if size == 0:
+        raise _unreadable(path, "the file is empty")
+    if head != _HDF5_SIGNATURE:
+        raise _unreadable(path, "not an HDF5 file (no HDF5 signature at its start)")
+    deadline = time.monotonic() + LOCK_WAIT_S
+    while True:
+        try:
+            return h5py.File(path, "r", swmr=True)
+        except Exception as exc:  # noqa: BLE001
+            text = str(exc)
+            if "unable to lock file" in text and time.monotonic() < deadline:
+                time.sleep(0.05)  # the writer is finalising the status, or setting the file up
+                continue
+            if "unable to lock file" not in text and "not already open for SWMR writing" not in text:
+                raise _unreadable(path, _describe(exc)) from None
+            break
+    try:
+        # Not in SWMR mode: a file closed normally, or one whose writer has not switched to SWMR yet.
+        return h5py.File(path, "r", locking=False)
+    except Exception as exc:  # noqa: BLE001
+        raise _unreadable(path, _describe(exc)) from None
+
+
+def _check_format(path: Path, f: h5py.File) -> None:
+    try:
+        if "format_version" not in f.attrs:
+            raise _unreadable(path, "no format_version attribute (not written by bench)")
+        raw = f.attrs["format_version"]
+        version = int(np.asarray(raw).item())
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        raise _unreadable(path, f"bad format_version attribute ({_describe(exc)})") from None
+    if version > FORMAT_VERSION:
+        raise InputError(
+            f"{path}: run file format_version {version} is newer than this bench reads (up to {FORMAT_VERSION}); "
+            "upgrade bench to read it"
+        )
+    if version < 1:
+        raise _unreadable(path, f"invalid format_version {version}")
+    for name in ("procedure/text", "config/text", "instruments", "streams", "events", "events_blob", "heartbeat"):
+        if name not in f:
+            raise _unreadable(path, f"/{name} is missing")
+
+
+def _unreadable(path: Path, reason: str) -> InputError:
+    return InputError(f"{path}: not a readable bench run file: {reason}")
+
+
+def _describe(exc: BaseException) -> str:
+    """A short reason for an h5py/HDF5 failure."""
+    text = str(exc)
+    if "already open for write" in text:
+        return (
+            "recording had not started: the writer is still setting the file up or stopped before switching "
+            "it to SWMR mode, so HDF5 cannot open it (nothing was recorded)"
+        )
+    if "truncated file" in text:
+        m = re.search(r"truncated file: ([^)]*)", text)
+        return f"the file is truncated ({m.group(1) if m else text})"
+    if "unable to lock file" in text:
+        return "the file is locked by the process writing it (it is not in SWMR mode yet)"
+    if "file signature not found" in text:
+        return "not an HDF5 file"
+    m = re.search(r"\(([^()]*)\)\s*$", text)
+    detail = m.group(1) if m else text
+    return f"{type(exc).__name__}: {detail}" if detail else type(exc).__name__
+
+
+# ---- reading ------------------------------------------------------------------------------------
+def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float) -> RunSummary:
+    attrs = {k: _plain(v) for k, v in f.attrs.items()}
+    hb = np.asarray(f["heartbeat"][()], dtype=np.float64).reshape(-1)
+    hb_unix = float(hb[0]) if hb.size >= 1 else None
+    hb_run = float(hb[1]) if hb.size >= 2 else None
+    status = str(attrs.get("status", ""))
+    detail = ""
+    if status == "running":
+        if hb_unix is None or not np.isfinite(hb_unix):
+            status, detail = "crashed", "no valid heartbeat"
+        else:
+            age = now_unix - hb_unix
+            since = _iso(hb_unix)
+            at = f", run time {hb_run:.1f} s" if hb_run is not None and np.isfinite(hb_run) else ""
+            if age >= stale_after_s:
+                status, detail = "crashed", f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
+            else:
+                detail = f"being written: last heartbeat {since} ({age:.1f} s ago{at})"
+    events = _read_events(f)
+    counts: dict[str, int] = {}
+    for e in events:
+        counts[e.kind] = counts.get(e.kind, 0) + 1
+    return RunSummary(
+        path=path,
+        attrs=attrs,
+        status=status,
+        procedure_text=_read_text(f["procedure/text"]),
+        config_text=_read_text(f["config/text"]),
+        instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in f["instruments"].items()},
+        streams=[_stream_summary(key, g) for key, g in _stream_groups(f).items()],
+        steps=_steps(events, live=status == "running"),
+        events=events,
+        abort_reason=str(attrs.get("abort_reason", "")),
+        status_detail=detail,
+        heartbeat_unix=hb_unix,
+        heartbeat_run_time_s=hb_run,
+        event_counts=counts,
+    )
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, bytes):
+        return v.decode("utf-8", errors="replace")
+    if isinstance(v, np.ndarray):
+        return [_plain(x) for x in v.tolist()]
+    if isinstance(v, np.generic):
+        return _plain(v.item())
+    return v
+
+
+def _read_text(ds: h5py.Dataset) -> str:
+    raw = ds[()]
+    raw = bytes(raw) if isinstance(raw, (bytes, np.bytes_)) else np.asarray(raw, dtype=np.uint8).tobytes()
+    n = ds.attrs.get("length_bytes")
+    if n is not None:
+        n = int(np.asarray(n).item())
+        raw = raw.ljust(n, b"\0")[:n]  # numpy drops trailing NULs of fixed-length strings
+    return raw.decode("utf-8", errors="surrogateescape")
+
+
+def _stream_groups(f: h5py.File) -> dict[str, h5py.Group]:
+    out: dict[str, h5py.Group] = {}
+    for inst, g in f["streams"].items():
+        if not isinstance(g, h5py.Group):
+            continue
+        if isinstance(g.get("time"), h5py.Dataset):
+            out[inst] = g
+            continue
+        for sub, sg in g.items():
+            if isinstance(sg, h5py.Group) and isinstance(sg.get("time"), h5py.Dataset):
+                out[f"{inst}/{sub}"] = sg
+    return out
+
+
+def _column_order(g: h5py.Group) -> list[str]:
+    declared = g.attrs.get("columns")
+    names = [n for n in str(_plain(declared)).split(",") if n] if declared is not None else []
+    present = [n for n in g if isinstance(g[n], h5py.Dataset)]
+    names = [n for n in names if n in present] + sorted(n for n in present if n not in names)
+    return ["time"] + [n for n in names if n != "time"]
+
+
+def _stream_summary(key: str, g: h5py.Group) -> StreamSummary:
+    names = _column_order(g)
+    rows = min(int(g[n].shape[0]) for n in names)
+    columns = {n: str(_plain(g[n].attrs.get("units", ""))) for n in names if n != "time"}
+    shapes = {n: tuple(int(s) for s in g[n].shape[1:]) for n in names if n != "time"}
+    t0 = t1 = rate = None
+    if rows:
+        t0 = float(g["time"][0])
+        t1 = float(g["time"][rows - 1])
+        if rows > 1 and t1 > t0:
+            rate = (rows - 1) / (t1 - t0)
+    return StreamSummary(key, columns, shapes, rows, t0, t1, rate)
+
+
+def _read_events(f: h5py.File) -> list[EventRow]:
+    ds = f["events"]
+    if not _EVENT_FIELDS <= set(ds.dtype.names or ()):
+        raise ValueError("/events does not have the bench event fields")
+    rows = ds[()]
+    blob = np.asarray(f["events_blob"][()], dtype=np.uint8).tobytes()
+    out = []
+    for r in rows:
+        out.append(
+            EventRow(
+                t_s=float(r["t_s"]),
+                wall_unix=float(r["wall_unix"]),
+                kind=bytes(r["kind"]).decode("ascii", errors="replace"),
+                source=bytes(r["source"]).decode("utf-8", errors="replace"),
+                step=int(r["step"]),
+                message=_slice(blob, int(r["msg_off"]), int(r["msg_len"])).decode("utf-8", errors="replace"),
+                data=_slice(blob, int(r["data_off"]), int(r["data_len"])),
+            )
+        )
+    return out
+
+
+def _slice(blob: bytes, off: int, n: int) -> bytes:
+    """Bytes ``off``..``off+n`` of the blob; what a reader racing the writer cannot see yet is cut off."""
+    if off >= len(blob) or n <= 0:
+        return b""
+    return blob[off : off + n]
+
+
+def _steps(events: list[EventRow], live: bool) -> list[StepSummary]:
+    steps: list[StepSummary] = []
+    open_steps: dict[int, StepSummary] = {}
+    for e in events:
+        if e.kind == "step_start":
+            s = StepSummary(e.step, e.message, "", e.t_s, None, e.source)
+            steps.append(s)
+            open_steps[e.step] = s
+        elif e.kind == "step_end":
+            s = open_steps.pop(e.step, None)
+            if s is None:
+                s = StepSummary(e.step, "", "", None, None, e.source)
+                steps.append(s)
+            outcome, _, detail = e.message.partition(":")
+            s.outcome = outcome.strip() or "done"
+            s.detail = detail.strip()
+            s.t_end_s = e.t_s
+    for s in open_steps.values():
+        s.outcome = "running" if live else "interrupted"
+    return steps
+
+
+def _iso(unix: float) -> str:
+    try:
+        return datetime.fromtimestamp(unix, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    except (OverflowError, OSError, ValueError):
+        return f"{unix!r} (Unix time)"
+
+
+# ---- rendering ----------------------------------------------------------------------------------
+_STATUS_STYLE = {"completed": "bold green", "running": "bold cyan", "crashed": "bold red", "aborted": "bold red", "failed": "bold red"}
+_OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan"}
+
+
+def render_summary(summary: RunSummary, console: Console, max_events: int = 40) -> None:
+    """Print the run as rich tables: header, instruments, streams, steps, the last ``max_events``
+    events with counts by kind."""
+    a = summary.attrs
+    head = Table.grid(padding=(0, 2))
+    head.add_column(style="bold")
+    head.add_column()
+    status = Text(summary.status, style=_STATUS_STYLE.get(summary.status, "bold"))
+    if summary.status_detail:
+        status.append(f"  {summary.status_detail}", style="dim" if summary.status == "running" else "red")
+    rows: list[tuple[str, Text | str]] = [
+        ("procedure", f"{a.get('procedure_name', '')} ({a.get('procedure_path', '')})"),
+        ("file", str(summary.path)),
+        ("status", status),
+        ("started", str(a.get("started_utc", ""))),
+        ("ended", str(a.get("ended_utc", "")) or "-"),
+        ("mode", str(a.get("mode", ""))),
+        ("operator", str(a.get("operator", ""))),
+        ("host", str(a.get("host", ""))),
+        ("software", f"bench {a.get('software_version', '')}, run-file format {a.get('format_version', '')}"),
+        ("config", str(a.get("config_path", ""))),
+    ]
+    if summary.abort_reason:
+        rows.append(("abort reason", Text(summary.abort_reason, style="red")))
+    for k, v in rows:
+        head.add_row(k, v if isinstance(v, Text) else Text(v))
+    console.print(head)
+
+    if summary.instruments:
+        t = Table(title="Instruments")
+        t.add_column("name")
+        t.add_column("identity")
+        for name, info in summary.instruments.items():
+            t.add_row(Text(name), Text(", ".join(f"{k}={v}" for k, v in info.items())))
+        console.print(t)
+
+    if summary.streams:
+        t = Table(title="Streams")
+        for col, just in (("stream", "left"), ("rows", "right"), ("time span s", "right"), ("rate Hz", "right"), ("columns (units)", "left")):
+            t.add_column(col, justify=just)  # type: ignore[arg-type]
+        for s in summary.streams:
+            span = f"{s.t_start_s:.3f} .. {s.t_end_s:.3f}" if s.t_start_s is not None and s.t_end_s is not None else "-"
+            rate = f"{s.rate_hz:.2f}" if s.rate_hz is not None else "-"
+            cols = ", ".join(f"{n}{list(s.shapes[n]) if s.shapes.get(n) else ''} [{u}]" for n, u in s.columns.items())
+            t.add_row(Text(s.key), str(s.rows), span, rate, Text(cols))
+        console.print(t)
+
+    if summary.steps:
+        t = Table(title="Steps")
+        for col, just in (("#", "right"), ("step", "left"), ("type", "left"), ("outcome", "left"), ("duration s", "right"), ("detail", "left")):
+            t.add_column(col, justify=just)  # type: ignore[arg-type]
+        for s in summary.steps:
+            d = s.duration_s
+            t.add_row(
+                str(s.index + 1), Text(s.name), Text(s.type), Text(s.outcome, style=_OUTCOME_STYLE.get(s.outcome, "")),
+                f"{d:.1f}" if d is not None else "-", Text(s.detail),
+            )
+        console.print(t)
+
+    n = len(summary.events)
+    shown = summary.events[-max_events:] if max_events > 0 else []
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(summary.event_counts.items()))
+    t = Table(title=f"Events (last {len(shown)} of {n}; {counts or 'none'})")
+    for col, just in (("t s", "right"), ("kind", "left"), ("source", "left"), ("step", "right"), ("message", "left"), ("data", "left")):
+        t.add_column(col, justify=just)  # type: ignore[arg-type]
+    for e in shown:
+        data = e.data[:16].hex(" ") + (" …" if len(e.data) > 16 else "") if e.data else ""
+        style = "red" if e.kind in ("error", "fault", "abort") else ""
+        t.add_row(f"{e.t_s:.3f}", Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "", Text(e.message), data)
+    console.print(t)

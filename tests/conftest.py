@@ -1,0 +1,58 @@
+"""Shared fixtures: paths, a simulated board on a virtual clock, CLI runners."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM_CONFIG = ROOT / "configs" / "sim.yaml"
+STARTUP = ROOT / "procedures" / "startup_profile.yaml"
+
+
+def pytest_collection_modifyitems(config, items):
+    if os.environ.get("BENCH_SLOW") == "1":
+        return
+    skip = pytest.mark.skip(reason="slow soak test: set BENCH_SLOW=1 to run")
+    for item in items:
+        if "slow" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture
+def sim_board():
+    """A simulated board from configs/sim.yaml on a virtual clock, registered as sim://<unique>."""
+    from bench.clock import VirtualClock
+    from bench.config import load_config
+    from bench.sim import registry
+    from bench.sim.factory import build_devices
+
+    config = load_config(SIM_CONFIG)
+    clock = VirtualClock()
+    device = build_devices(config, clock, ["acs_board"])["acs_board"]
+    name = f"acs_board_test_{os.getpid()}_{id(device)}"
+    url = registry.register(name, device)
+    yield device, clock, url
+    registry.unregister(name)
+
+
+def run_cli(*args: str, cwd: Path = ROOT, timeout: float = 120, **kwargs) -> subprocess.CompletedProcess:
+    """Run ``python -m bench ARGS`` in a subprocess and capture its output."""
+    return subprocess.run(
+        [sys.executable, "-m", "bench", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout, **kwargs
+    )
+
+
+def write_procedure(path: Path, steps: str, instruments: str = "[acs_board]") -> Path:
+    path.write_text(f"schema: bench-procedure/1\nname: {path.stem}\ninstruments: {instruments}\nsteps:\n{steps}")
+    return path
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
