@@ -182,7 +182,8 @@ class DecodedBatch:
         return cls(np.zeros(0, np.uint16), np.zeros(0), z3, z3.copy(), z3.copy(), z3.copy(), np.zeros(0, np.uint16))
 
 
-_ROW38 = np.arange(DATA_FRAME_LEN)
+_EMPTY_ROWS = np.zeros((0, DATA_FRAME_LEN), dtype=np.uint8)
+_DATA_HEADER_CRC = crc16_xmodem(bytes([FrameType.DATA, DATA_PAYLOAD_LEN]))
 _PLAUSIBLE = np.zeros(256, dtype=bool)
 _PLAUSIBLE[list(KNOWN_TYPES)] = True
 
@@ -237,22 +238,21 @@ class FrameDecoder:
         good = np.zeros(cand.size, dtype=bool)
         is_data = ftype == FrameType.DATA
         d_idx = np.flatnonzero(is_data)
+        rows = _EMPTY_ROWS
         if d_idx.size:
-            rows = buf[cand[d_idx, None] + _ROW38]
-            crc = crc16_xmodem_rows(rows[:, 2:CRC_OFFSET])
-            sent = (rows[:, CRC_OFFSET].astype(np.uint16) << 8) | rows[:, CRC_OFFSET + 1]
-            good[d_idx] = crc == sent
+            # gather whole frames as rows (one 38-byte copy each), check payload+CRC in one pass
+            rows = np.lib.stride_tricks.sliding_window_view(buf, DATA_FRAME_LEN)[cand[d_idx]]
+            good[d_idx] = crc16_xmodem_rows(rows[:, HEADER_LEN:], _DATA_HEADER_CRC) == 0
         for i in np.flatnonzero(~is_data):  # replies and commands are rare: a loop is fine
             s, e = int(cand[i]), int(ends[i])
             good[i] = crc16_xmodem(buf_bytes[s + 2 : e - 2]) == int.from_bytes(buf_bytes[e - 2 : e], "big")
 
-        g_start, g_end = cand[good], ends[good]
-        if g_start.size > 1 and np.any(g_end[:-1] > g_start[1:]):
+        g_start, g_end, g_type = cand[good], ends[good], ftype[good]
+        data_rows = rows[good[d_idx]]
+        if g_start.size > 1 and np.any(g_end[:-1] > g_start[1:]):  # rare: overlapping valid frames
             accept = _non_overlapping(g_start, g_end)
-            g_start, g_end = g_start[accept], g_end[accept]
-            g_type = ftype[good][accept]
-        else:
-            g_type = ftype[good]
+            data_rows = data_rows[accept[g_type == FrameType.DATA]]
+            g_start, g_end, g_type = g_start[accept], g_end[accept], g_type[accept]
         bad = cand[~good]
         if bad.size and g_start.size:
             j = np.searchsorted(g_start, bad, side="right") - 1
@@ -264,10 +264,11 @@ class FrameDecoder:
         garbage = consumed - int((g_end - g_start).sum())
         self._tail = buf_bytes[consumed:]
 
-        data_start = g_start[g_type == FrameType.DATA]
-        batch = self._decode_data(buf, data_start)
-        for s, e, t in zip(g_start[g_type != FrameType.DATA], g_end[g_type != FrameType.DATA], g_type[g_type != FrameType.DATA]):
-            batch.replies.append((int(t), buf_bytes[int(s) + 4 : int(e) - 2]))
+        batch = self._decode_data(data_rows)
+        other = g_type != FrameType.DATA
+        if other.any():
+            for s, e, t in zip(g_start[other].tolist(), g_end[other].tolist(), g_type[other].tolist()):
+                batch.replies.append((t, buf_bytes[s + HEADER_LEN : e - 2]))
         batch.crc_errors = crc_errors
         batch.garbage_bytes = garbage
         batch.frames_ok = int(g_start.size)
@@ -277,11 +278,12 @@ class FrameDecoder:
         self.dropped_frames += batch.dropped_frames
         return batch
 
-    def _decode_data(self, buf: np.ndarray, starts: np.ndarray) -> DecodedBatch:
-        n = starts.size
+    def _decode_data(self, rows: np.ndarray) -> DecodedBatch:
+        """Decode good data frames given as an (n, 38) contiguous byte matrix."""
+        n = rows.shape[0]
         if n == 0:
             return DecodedBatch.empty()
-        frames = np.ascontiguousarray(buf[starts[:, None] + _ROW38]).view(DATA_DTYPE).reshape(n)
+        frames = rows.view(DATA_DTYPE).reshape(n)
         counter = frames["counter"].astype(np.uint16)
         c = counter.astype(np.int64)
         prev = np.concatenate(([self._last_counter], c[:-1])) if self._last_counter is not None else None

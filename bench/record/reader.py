@@ -140,7 +140,8 @@ def read_stream(path: Path, stream_key: str) -> dict[str, np.ndarray]:
                 raise InputError(f"{path}: no stream {stream_key!r} (streams: {', '.join(groups) or 'none'})")
             g = groups[stream_key]
             names = _column_order(g)
-            rows = min(int(g[n].shape[0]) for n in names)
+            limit = _size_limit(path)
+            rows = min(_checked_rows(g[n], limit) for n in names)
             return {n: np.asarray(g[n][:rows]) for n in names}
         except InputError:
             raise
@@ -243,8 +244,27 @@ def _describe(exc: BaseException) -> str:
 
 
 # ---- reading ------------------------------------------------------------------------------------
+def _size_limit(path: Path) -> int:
+    """Most bytes any dataset of this file can hold: data is stored uncompressed, so a dataset
+    larger than the file (plus a few chunks a live writer may just be adding) is corrupted."""
+    return path.stat().st_size + 4 * 1024 * 1024
+
+
+def _checked_rows(ds: h5py.Dataset, limit: int) -> int:
+    """Rows of ``ds`` after checking its size is plausible (a corrupted extent could ask HDF5 to
+    produce terabytes of fill values)."""
+    if not isinstance(ds, h5py.Dataset) or ds.ndim < 1:
+        raise ValueError(f"{ds.name} is not a row dataset")
+    if ds.size * ds.dtype.itemsize > limit:
+        raise ValueError(f"{ds.name} claims {ds.shape} x {ds.dtype.itemsize} bytes, more than the file holds (corrupted)")
+    return int(ds.shape[0])
+
+
 def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float) -> RunSummary:
+    limit = _size_limit(path)
     attrs = {k: _plain(v) for k, v in f.attrs.items()}
+    if _checked_rows(f["heartbeat"], limit) != 2:
+        raise ValueError("/heartbeat does not hold 2 values")
     hb = np.asarray(f["heartbeat"][()], dtype=np.float64).reshape(-1)
     hb_unix = float(hb[0]) if hb.size >= 1 else None
     hb_run = float(hb[1]) if hb.size >= 2 else None
@@ -261,7 +281,7 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float) 
                 status, detail = "crashed", f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
             else:
                 detail = f"being written: last heartbeat {since} ({age:.1f} s ago{at})"
-    events = _read_events(f)
+    events = _read_events(f, limit)
     counts: dict[str, int] = {}
     for e in events:
         counts[e.kind] = counts.get(e.kind, 0) + 1
@@ -269,10 +289,10 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float) 
         path=path,
         attrs=attrs,
         status=status,
-        procedure_text=_read_text(f["procedure/text"]),
-        config_text=_read_text(f["config/text"]),
+        procedure_text=_read_text(f["procedure/text"], limit),
+        config_text=_read_text(f["config/text"], limit),
         instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in f["instruments"].items()},
-        streams=[_stream_summary(key, g) for key, g in _stream_groups(f).items()],
+        streams=[_stream_summary(key, g, limit) for key, g in _stream_groups(f).items()],
         steps=_steps(events, live=status == "running"),
         events=events,
         abort_reason=str(attrs.get("abort_reason", "")),
@@ -293,12 +313,14 @@ def _plain(v: Any) -> Any:
     return v
 
 
-def _read_text(ds: h5py.Dataset) -> str:
+def _read_text(ds: h5py.Dataset, limit: int) -> str:
+    if not isinstance(ds, h5py.Dataset) or ds.size * ds.dtype.itemsize > limit:
+        raise ValueError(f"{ds.name} is not a plausible text dataset (corrupted)")
     raw = ds[()]
     raw = bytes(raw) if isinstance(raw, (bytes, np.bytes_)) else np.asarray(raw, dtype=np.uint8).tobytes()
     n = ds.attrs.get("length_bytes")
     if n is not None:
-        n = int(np.asarray(n).item())
+        n = min(int(np.asarray(n).item()), limit)
         raw = raw.ljust(n, b"\0")[:n]  # numpy drops trailing NULs of fixed-length strings
     return raw.decode("utf-8", errors="surrogateescape")
 
@@ -325,9 +347,9 @@ def _column_order(g: h5py.Group) -> list[str]:
     return ["time"] + [n for n in names if n != "time"]
 
 
-def _stream_summary(key: str, g: h5py.Group) -> StreamSummary:
+def _stream_summary(key: str, g: h5py.Group, limit: int) -> StreamSummary:
     names = _column_order(g)
-    rows = min(int(g[n].shape[0]) for n in names)
+    rows = min(_checked_rows(g[n], limit) for n in names)
     columns = {n: str(_plain(g[n].attrs.get("units", ""))) for n in names if n != "time"}
     shapes = {n: tuple(int(s) for s in g[n].shape[1:]) for n in names if n != "time"}
     t0 = t1 = rate = None
@@ -339,12 +361,13 @@ def _stream_summary(key: str, g: h5py.Group) -> StreamSummary:
     return StreamSummary(key, columns, shapes, rows, t0, t1, rate)
 
 
-def _read_events(f: h5py.File) -> list[EventRow]:
+def _read_events(f: h5py.File, limit: int) -> list[EventRow]:
     ds = f["events"]
     if not _EVENT_FIELDS <= set(ds.dtype.names or ()):
         raise ValueError("/events does not have the bench event fields")
-    rows = ds[()]
-    blob = np.asarray(f["events_blob"][()], dtype=np.uint8).tobytes()
+    rows = ds[: _checked_rows(ds, limit)]
+    blob_ds = f["events_blob"]
+    blob = np.asarray(blob_ds[: _checked_rows(blob_ds, limit)], dtype=np.uint8).tobytes()
     out = []
     for r in rows:
         out.append(
