@@ -210,30 +210,34 @@ class FrameDecoder:
         self.dropped_frames = 0
         self.frames_ok = 0
 
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes held back until more data shows whether they start a frame."""
+        return len(self._tail)
+
     def feed(self, data: bytes) -> DecodedBatch:
+        """Decode ``data`` (appended to the bytes held back from the previous feed)."""
         buf_bytes = self._tail + bytes(data)
         buf = np.frombuffer(buf_bytes, dtype=np.uint8)
         size = buf.size
-        if size < 2:
-            self._tail = buf_bytes
-            return DecodedBatch.empty()
         cand = np.flatnonzero((buf[:-1] == 0xA5) & (buf[1:] == 0x5A))
-        # where the undecidable end of the buffer begins: an incomplete header or frame
-        limit = size - 1 if buf[-1] == 0xA5 else size
+        # Stop points: places from which the rest of the buffer is undecidable (an incomplete
+        # header or frame, or a trailing A5 that may be half a sync word) unless they turn out to
+        # lie inside an accepted frame.
+        stops = [size - 1] if size and buf[-1] == 0xA5 else []
         header_ok = cand + HEADER_LEN <= size
         if not header_ok.all():
-            limit = min(limit, int(cand[~header_ok][0]))
+            stops.append(int(cand[~header_ok][0]))
         cand = cand[header_ok]
         ftype = buf[cand + 2]
         flen = buf[cand + 3].astype(np.int64)
         plausible = self._plausible[ftype] & np.where(ftype == FrameType.DATA, flen == DATA_PAYLOAD_LEN, flen <= MAX_PAYLOAD)
         cand, ftype, flen = cand[plausible], ftype[plausible], flen[plausible]
         ends = cand + OVERHEAD + flen
-        incomplete = ends > size
-        if incomplete.any():
-            limit = min(limit, int(cand[incomplete][0]))
-        keep = cand < limit
-        cand, ftype, ends = cand[keep], ftype[keep], ends[keep]
+        complete = ends <= size
+        if not complete.all():
+            stops.extend(cand[~complete].tolist())
+            cand, ftype, ends = cand[complete], ftype[complete], ends[complete]
 
         good = np.zeros(cand.size, dtype=bool)
         is_data = ftype == FrameType.DATA
@@ -253,16 +257,25 @@ class FrameDecoder:
             accept = _non_overlapping(g_start, g_end)
             data_rows = data_rows[accept[g_type == FrameType.DATA]]
             g_start, g_end, g_type = g_start[accept], g_end[accept], g_type[accept]
+        # the first stop point outside every accepted frame ends what this feed can decide
+        limit = size
+        if stops:
+            st = np.unique(np.asarray(stops, dtype=np.int64))
+            if g_start.size:
+                st = st[~_inside(st, g_start, g_end)]
+            if st.size:
+                limit = int(st[0])
+        if g_start.size and g_start[-1] >= limit:  # frames after the stop point wait for the next feed
+            keep = g_start < limit
+            data_rows = data_rows[keep[g_type == FrameType.DATA]]
+            g_start, g_end, g_type = g_start[keep], g_end[keep], g_type[keep]
         bad = cand[~good]
+        bad = bad[bad < limit]
         if bad.size and g_start.size:
-            j = np.searchsorted(g_start, bad, side="right") - 1
-            inside = (j >= 0) & (bad < g_end[np.maximum(j, 0)])
-            bad = bad[~inside]
+            bad = bad[~_inside(bad, g_start, g_end)]
         crc_errors = int(bad.size)
-        # a sync-like pattern inside the last good frame may have set the limit: that frame is whole
-        consumed = max(limit, int(g_end[-1])) if g_end.size else limit
-        garbage = consumed - int((g_end - g_start).sum())
-        self._tail = buf_bytes[consumed:]
+        garbage = limit - int((g_end - g_start).sum())
+        self._tail = buf_bytes[limit:]
 
         batch = self._decode_data(data_rows)
         other = g_type != FrameType.DATA
@@ -304,6 +317,12 @@ class FrameDecoder:
             if f.count == 3:
                 out[f.decoded] = frames[f.raw].astype(np.float64) * f.scale
         return DecodedBatch(**out, dropped_frames=dropped)
+
+
+def _inside(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Which ``points`` fall strictly after the start and before the end of a (sorted, disjoint) frame."""
+    j = np.searchsorted(starts, points, side="right") - 1
+    return (j >= 0) & (points > starts[np.maximum(j, 0)]) & (points < ends[np.maximum(j, 0)])
 
 
 def _non_overlapping(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:

@@ -65,9 +65,12 @@ def crc16_words(words: np.ndarray, init: int = 0) -> np.ndarray:
     if k == 0:
         return np.full(n, init & 0xFFFF, dtype=np.uint16)
     cols = np.ascontiguousarray(words.T, dtype=np.uint16)  # each column contiguous, native order
-    crc = _T2[cols[0] ^ np.uint16(init & 0xFFFF)]
+    first = cols[0] ^ np.uint16(init & 0xFFFF) if init & 0xFFFF else cols[0]  # never modify the caller's array
+    crc = _T2.take(first)
+    idx = np.empty(n, dtype=np.uint16)
     for j in range(1, k):
-        crc = _T2[crc ^ cols[j]]
+        np.bitwise_xor(crc, cols[j], out=idx)
+        _T2.take(idx, out=crc)
     return crc
 
 
@@ -88,7 +91,7 @@ def crc16_xmodem_rows(rows: np.ndarray, init: int = 0) -> np.ndarray:
     n, m = rows.shape
     even = m - (m % 2)
     if even:
-        if rows.flags.c_contiguous and m == even:
+        if m == even and rows.strides[1] == 1:  # bytes of a row adjacent: read words in place
             words = rows.view(">u2")
         else:
             words = (rows[:, 0:even:2].astype(np.uint16) << 8) | rows[:, 1:even:2]
