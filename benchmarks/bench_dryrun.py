@@ -2,7 +2,7 @@
 
 Runs the full path in-process (driver over sim://, decoder, recorder writing HDF5, runner) with the
 board at 100 Hz, and, in the same run, the baseline "simulator alone": the same board producing the
-same 30 minutes of frames in the same 1-s steps with nobody decoding or recording them.
+same 30 minutes of frames in the same steps (the runner's poll period) with nobody decoding or recording them.
 
     python benchmarks/bench_dryrun.py [--repeat 3] [--json]
 """
@@ -26,6 +26,7 @@ from bench.lab import open_lab  # noqa: E402
 from bench.procedure import load_procedure  # noqa: E402
 from bench.record import RunRecorder  # noqa: E402
 from bench.runner import Runner  # noqa: E402
+from bench.runner.engine import POLL_PERIOD_VIRTUAL_S  # noqa: E402
 from bench.sim.factory import build_devices  # noqa: E402
 
 
@@ -61,7 +62,7 @@ def simulator_alone(config, seconds: float) -> tuple[float, float, int]:
     t0 = time.perf_counter()
     nbytes = 0
     while clock.now() < seconds:
-        clock.sleep(1.0)
+        clock.sleep(POLL_PERIOD_VIRTUAL_S)
         nbytes += len(dev.take_output(clock.now()))
     return seconds, time.perf_counter() - t0, nbytes // proto.DATA_FRAME_LEN
 

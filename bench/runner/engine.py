@@ -30,7 +30,7 @@ ACS_COLUMNS = [
 ]
 """Stream layout of a sensor board: temp = (gyro die, accel die, board)."""
 
-POLL_PERIOD_VIRTUAL_S = 1.0  # run time between stream polls in a dry-run (s)
+POLL_PERIOD_VIRTUAL_S = 5.0  # run time between stream polls in a dry-run (s): 500 frames per batch at 100 Hz
 POLL_PERIOD_WALL_S = 0.1  # on the wall clock: keeps abort latency and progress updates short
 
 
