@@ -8,6 +8,7 @@ what was expected.
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any
 
 import pint
@@ -31,22 +32,30 @@ def to_units(value: Any, units: str, location: Location | None = None, field: st
     if isinstance(value, bool):
         raise InputError(f"expected a quantity in {units}, got {value!r}", location, field)
     if isinstance(value, (int, float)):
+        if not math.isfinite(value):
+            raise InputError(f"{value!r} is not a finite quantity", location, field)
         return float(value)
     if not isinstance(value, str):
         raise InputError(f"expected a quantity in {units} such as '10 {units}', got {value!r}", location, field)
     ureg = registry()
     try:
         q = ureg.Quantity(value.strip())
-    except (pint.errors.PintError, ValueError, AttributeError, TypeError, SyntaxError, KeyError) as exc:
+    except Exception as exc:  # noqa: BLE001 - pint's parser raises many types (even AssertionError)
         raise InputError(f"cannot read quantity {value!r}: {_short(exc)}", location, field) from None
-    if not isinstance(q, pint.Quantity):  # a bare number in a string
-        return float(q)
     try:
-        return float(q.to(units).magnitude)
+        if not isinstance(q, pint.Quantity):  # a bare number in a string
+            result = float(q)
+        else:
+            result = float(q.to(units).magnitude)
     except pint.errors.DimensionalityError:
         raise InputError(
             f"{value!r} has units of {q.dimensionality}, expected a quantity convertible to {units}", location, field
         ) from None
+    except Exception as exc:  # noqa: BLE001 - e.g. a complex or non-numeric magnitude
+        raise InputError(f"cannot read quantity {value!r}: {_short(exc)}", location, field) from None
+    if not math.isfinite(result):
+        raise InputError(f"{value!r} is not a finite quantity", location, field)
+    return result
 
 
 def _short(exc: Exception) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import textwrap
 
 import pytest
@@ -149,3 +150,23 @@ def test_bad_config_is_located(tmp_path):
     assert any(":3:" in l and "latitude" in l for l in lines), lines
     assert any(":6:" in l and "warp_drive" in l for l in lines), lines
     assert any(":8:" in l and "timeout" in l for l in lines), lines
+
+
+@pytest.mark.parametrize("text", ["()", "**", "[]", "1 (", "1e999 s", "nan s", ".nan"])
+def test_unreadable_or_non_finite_quantities_are_input_errors(text):
+    from bench.units import to_units
+
+    with pytest.raises(InputError):
+        to_units(text if text != ".nan" else float("nan"), "s")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(alphabet="0123456789.eE+-*/^() []sminHzdegCTorrkgu", max_size=20))
+def test_quantity_parser_never_escapes(text):
+    from bench.units import to_units
+
+    try:
+        value = to_units(text, "s")
+    except InputError:
+        return
+    assert math.isfinite(value)

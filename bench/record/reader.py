@@ -1,7 +1,8 @@
 """Read run files written by :mod:`bench.record.writer`, also while they are being written.
 
-A file being written is opened as an HDF5 SWMR reader; a file that was never switched to SWMR mode
-is opened without file locking. Anything that is not a readable bench run file (missing, empty,
+A finished file is opened normally; a file in SWMR write mode (being written, or its writer died)
+as an HDF5 SWMR reader; a file that was never switched to SWMR mode without file locking (which
+HDF5 then refuses: nothing was recorded). Anything that is not a readable bench run file (missing, empty,
 truncated, corrupted, another HDF5 file) raises :class:`InputError`
 ``"<path>: not a readable bench run file: <reason>"``; h5py exceptions never leak out.
 
@@ -10,6 +11,8 @@ Units: run times in s since the start of the run, wall times in s since the Unix
 
 from __future__ import annotations
 
+import ctypes
+import os
 import re
 import time
 from contextlib import contextmanager
@@ -110,6 +113,7 @@ class RunSummary:
     heartbeat_unix: float | None = None
     heartbeat_run_time_s: float | None = None
     event_counts: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
 
 def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_unix: float | None = None) -> RunSummary:
@@ -120,42 +124,43 @@ def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_un
     Raises :class:`InputError` if the file is not a readable bench run file or is of a newer format.
     """
     path = Path(path)
-    with _open_run(path) as f:
-        try:
-            return _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix)
-        except InputError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - corrupted files make h5py/numpy raise anything
-            raise _unreadable(path, _describe(exc)) from None
+    with _open_run(path) as (f, warnings):
+        summary = _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix)
+        summary.warnings = warnings
+        return summary
 
 
 def read_stream(path: Path, stream_key: str) -> dict[str, np.ndarray]:
     """All rows of stream ``stream_key``: ``time`` (run time, s) and every column, each cut to the
     number of rows complete in every dataset. Raises :class:`InputError` for an unknown stream."""
     path = Path(path)
-    with _open_run(path) as f:
-        try:
-            groups = _stream_groups(f)
-            if stream_key not in groups:
-                raise InputError(f"{path}: no stream {stream_key!r} (streams: {', '.join(groups) or 'none'})")
-            g = groups[stream_key]
-            names = _column_order(g)
-            limit = _size_limit(path)
-            rows = min(_checked_rows(g[n], limit) for n in names)
-            return {n: np.asarray(g[n][:rows]) for n in names}
-        except InputError:
-            raise
-        except Exception as exc:  # noqa: BLE001
-            raise _unreadable(path, _describe(exc)) from None
+    with _open_run(path) as (f, _warnings):
+        groups = _stream_groups(f)
+        if stream_key not in groups:
+            raise InputError(f"{path}: no stream {stream_key!r} (streams: {', '.join(groups) or 'none'})")
+        g = groups[stream_key]
+        names = _column_order(g)
+        limit = _size_limit(path)
+        rows = min(_checked_rows(g[n], limit) for n in names)
+        return {n: np.asarray(g[n][:rows]) for n in names}
 
 
 # ---- opening ------------------------------------------------------------------------------------
 @contextmanager
-def _open_run(path: Path) -> Iterator[h5py.File]:
-    f = _open_h5(path)
+def _open_run(path: Path) -> Iterator[tuple[h5py.File, list[str]]]:
+    """Open, check the format, yield ``(file, warnings)``; any failure inside becomes InputError."""
+    f, truncated = _open_h5(path)
+    warnings = [f"{truncated}: the last rows and events may be missing or read as zeros"] if truncated else []
     try:
         _check_format(path, f)
-        yield f
+        yield f, warnings
+    except InputError as exc:
+        if truncated and exc.message.startswith(f"{path}: not a readable bench run file: "):
+            detail = exc.message.split(": not a readable bench run file: ", 1)[1]
+            raise _unreadable(path, f"{truncated} ({detail})") from None
+        raise
+    except Exception as exc:  # noqa: BLE001 - corrupted files make h5py/numpy raise anything
+        raise _unreadable(path, f"{truncated} ({_describe(exc)})" if truncated else _describe(exc)) from None
     finally:
         try:
             f.close()
@@ -163,7 +168,17 @@ def _open_run(path: Path) -> Iterator[h5py.File]:
             pass
 
 
-def _open_h5(path: Path) -> h5py.File:
+def _open_h5(path: Path) -> tuple[h5py.File, str]:
+    """Open a run file read-only, whatever state its writer is (or was) in.
+
+    A finalised file opens normally. A file that is, or was when its writer died, in SWMR write
+    mode refuses that ("already open for write") and is opened as an SWMR reader. A file whose
+    writer holds the lock (setting up, or finalising the status) is retried for ``LOCK_WAIT_S``.
+    The normal open comes first because an SWMR reader retries every metadata block whose
+    checksum fails with exponential back-off (100 attempts by default: hours on a corrupted file).
+    A file shorter than its superblock says (a write that failed half-way, a disk that filled up)
+    is opened as an SWMR reader too, which does not check the length, with a warning.
+    """
     try:
         if not path.exists():
             raise _unreadable(path, "no such file")
@@ -179,30 +194,92 @@ def _open_h5(path: Path) -> h5py.File:
     if head != _HDF5_SIGNATURE:
         raise _unreadable(path, "not an HDF5 file (no HDF5 signature at its start)")
     deadline = time.monotonic() + LOCK_WAIT_S
+    truncated: BaseException | None = None
     while True:
         try:
-            return h5py.File(path, "r", swmr=True)
-        except Exception as exc:  # noqa: BLE001
+            return h5py.File(path, "r"), ""
+        except Exception as exc:  # noqa: BLE001 - h5py raises OSError subclasses, RuntimeError...
             text = str(exc)
             if "unable to lock file" in text and time.monotonic() < deadline:
-                time.sleep(0.05)  # the writer is finalising the status, or setting the file up
+                time.sleep(0.05)
                 continue
-            if "unable to lock file" not in text and "not already open for SWMR writing" not in text:
-                raise _unreadable(path, _describe(exc)) from None
-            break
+            if "truncated file" in text:
+                truncated = exc
+                break
+            if "already open for write" in text:
+                break
+            raise _unreadable(path, _describe(exc)) from None
     try:
-        # Not in SWMR mode: a file closed normally, or one whose writer has not switched to SWMR yet.
-        return h5py.File(path, "r", locking=False)
+        f = _open_swmr_reader(path)
+    except Exception as exc:  # noqa: BLE001
+        if truncated is not None:
+            raise _unreadable(path, _describe(truncated)) from None
+        if "not already open for SWMR writing" not in str(exc):
+            raise _unreadable(path, _describe(exc)) from None
+    else:
+        return f, _describe(truncated) if truncated is not None else ""
+    try:
+        # Never switched to SWMR mode: the writer died (or is) before recording started.
+        return h5py.File(path, "r", locking=False), ""
     except Exception as exc:  # noqa: BLE001
         raise _unreadable(path, _describe(exc)) from None
+
+
+SWMR_READ_ATTEMPTS = 26
+"""Metadata read attempts of an SWMR reader (HDF5 default 100). A block read while the writer
+rewrites it fails its checksum and is read again after a doubling pause; 26 attempts bound that
+to about 70 ms per block instead of practically forever for a block that is truly corrupted."""
+
+_set_read_attempts: Any = None
+
+
+def _open_swmr_reader(path: Path) -> h5py.File:
+    """``h5py.File(path, "r", swmr=True)``, with ``SWMR_READ_ATTEMPTS`` when the HDF5 library
+    h5py uses can be reached (h5py has no binding for ``H5Pset_metadata_read_attempts``)."""
+    setter = _read_attempts_setter()
+    if setter is None:
+        return h5py.File(path, "r", swmr=True)
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    if setter(fapl.id, SWMR_READ_ATTEMPTS) < 0:
+        return h5py.File(path, "r", swmr=True)
+    fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
+    return h5py.File(fid)
+
+
+def _read_attempts_setter() -> Any:
+    """``H5Pset_metadata_read_attempts`` of the HDF5 library loaded by h5py, or None."""
+    global _set_read_attempts
+    if _set_read_attempts is not None:
+        return _set_read_attempts or None
+    found: Any = False
+    candidates = sorted(Path(h5py.__file__).parent.parent.glob("h5py.libs/libhdf5-*.so*"))
+    candidates = [c for c in candidates if "_hl" not in c.name]
+    try:
+        with open("/proc/self/maps") as maps:
+            for line in maps:
+                lib = line.rsplit(" ", 1)[-1].strip()
+                if "/libhdf5" in lib and "_hl" not in Path(lib).name and Path(lib) not in candidates:
+                    candidates.append(Path(lib))
+    except OSError:
+        pass
+    for lib_path in candidates:
+        try:
+            fn = ctypes.CDLL(str(lib_path)).H5Pset_metadata_read_attempts
+        except (OSError, AttributeError):
+            continue
+        fn.argtypes = [ctypes.c_int64, ctypes.c_uint]
+        fn.restype = ctypes.c_int
+        found = fn
+        break
+    _set_read_attempts = found
+    return found or None
 
 
 def _check_format(path: Path, f: h5py.File) -> None:
     try:
         if "format_version" not in f.attrs:
             raise _unreadable(path, "no format_version attribute (not written by bench)")
-        raw = f.attrs["format_version"]
-        version = int(np.asarray(raw).item())
+        version = int(np.asarray(f.attrs["format_version"]).item())
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001
@@ -215,7 +292,11 @@ def _check_format(path: Path, f: h5py.File) -> None:
     if version < 1:
         raise _unreadable(path, f"invalid format_version {version}")
     for name in ("procedure/text", "config/text", "instruments", "streams", "events", "events_blob", "heartbeat"):
-        if name not in f:
+        try:
+            present = name in f
+        except Exception as exc:  # noqa: BLE001
+            raise _unreadable(path, f"/{name}: {_describe(exc)}") from None
+        if not present:
             raise _unreadable(path, f"/{name} is missing")
 
 
@@ -238,6 +319,8 @@ def _describe(exc: BaseException) -> str:
         return "the file is locked by the process writing it (it is not in SWMR mode yet)"
     if "file signature not found" in text:
         return "not an HDF5 file"
+    if "incorrect metadata checksum" in text:
+        return "corrupted: HDF5 metadata fails its checksum"
     m = re.search(r"\(([^()]*)\)\s*$", text)
     detail = m.group(1) if m else text
     return f"{type(exc).__name__}: {detail}" if detail else type(exc).__name__
@@ -449,6 +532,8 @@ def render_summary(summary: RunSummary, console: Console, max_events: int = 40) 
     ]
     if summary.abort_reason:
         rows.append(("abort reason", Text(summary.abort_reason, style="red")))
+    for w in summary.warnings:
+        rows.append(("warning", Text(w, style="yellow")))
     for k, v in rows:
         head.add_row(k, v if isinstance(v, Text) else Text(v))
     console.print(head)
@@ -468,7 +553,7 @@ def render_summary(summary: RunSummary, console: Console, max_events: int = 40) 
         for s in summary.streams:
             span = f"{s.t_start_s:.3f} .. {s.t_end_s:.3f}" if s.t_start_s is not None and s.t_end_s is not None else "-"
             rate = f"{s.rate_hz:.2f}" if s.rate_hz is not None else "-"
-            cols = ", ".join(f"{n}{list(s.shapes[n]) if s.shapes.get(n) else ''} [{u}]" for n, u in s.columns.items())
+            cols = ", ".join(f"{n}{list(s.shapes[n]) if s.shapes.get(n) else ''} ({u})" for n, u in s.columns.items())
             t.add_row(Text(s.key), str(s.rows), span, rate, Text(cols))
         console.print(t)
 

@@ -23,7 +23,7 @@ import socket
 import tempfile
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from types import TracebackType
@@ -75,6 +75,7 @@ DEFAULT_CHUNK_ROWS = 4096
 MAX_CHUNK_BYTES = 1024 * 1024  # stays inside HDF5's default 1 MiB chunk cache per dataset
 MIN_CHUNK_ROWS = 64
 BUFFER_SPILL_BYTES = 16 * 1024 * 1024  # a stream's buffer is written out early past this size (bytes)
+FLUSH_SLACK_S = 1e-6  # tick() tolerance (s) so that ten 0.1-s steps count as 1 s despite rounding
 RESERVE_BYTES = 1024 * 1024  # kept free for metadata and finalising the status (bytes)
 
 _NAME_BAD = re.compile(r"[^A-Za-z0-9._-]+")
@@ -106,6 +107,8 @@ class _Stream:
     pending_rows: int = 0
     pending_bytes: int = 0
     row_bytes: int = 0
+    chunk_rows: dict[str, int] = field(default_factory=dict)  # per dataset
+    chunk_bytes: dict[str, int] = field(default_factory=dict)
     on_disk: int = 0  # rows written to the datasets
     appended: int = 0  # rows accepted by append()
 
@@ -178,17 +181,15 @@ class RunRecorder:
         self._state = "open"  # open | released (SWMR file closed, status not final) | closed
         self._failure = ""  # reason of the first failed or refused write; no writes after it
         self._broken = False  # an HDF5 write failed: handles abandoned, status cannot be finalised
-        self._reserve_bytes = RESERVE_BYTES + EVENT_CHUNK_ROWS * EVENT_DTYPE.itemsize + BLOB_CHUNK_BYTES
         self._events: list[tuple] = []
         self._blob_pending = bytearray()
         self._blob_total = 0  # bytes in /events_blob including pending (= offset of the next message)
         self._events_on_disk = 0
         self._run_time_s = 0.0
         self._last_flush = wall_clock()
-        ds = file
-        self._events_ds: h5py.Dataset = ds["events"]
-        self._blob_ds: h5py.Dataset = ds["events_blob"]
-        self._heartbeat_ds: h5py.Dataset = ds["heartbeat"]
+        self._events_ds: h5py.Dataset = file["events"]
+        self._blob_ds: h5py.Dataset = file["events_blob"]
+        self._heartbeat_ds: h5py.Dataset = file["heartbeat"]
 
     # ---- creation -------------------------------------------------------------------------
     @classmethod
@@ -340,10 +341,11 @@ class RunRecorder:
             datasets["time"].attrs["description"] = "run time of each row (s since the start of the run)"
             for c in columns:
                 datasets[c.name] = self._new_column(g, c, rate_hz)
-        self._reserve_bytes += sum(int(np.prod(ds.chunks, dtype=np.int64)) * ds.dtype.itemsize for ds in datasets.values())
         all_dtypes = {"time": np.dtype("f8"), **dtypes}
         self._streams[key] = _Stream(
-            key, g, list(columns), all_dtypes, datasets, {n: [] for n in datasets}, row_bytes=row_bytes
+            key, g, list(columns), all_dtypes, datasets, {n: [] for n in datasets}, row_bytes=row_bytes,
+            chunk_rows={n: int(ds.chunks[0]) for n, ds in datasets.items()},
+            chunk_bytes={n: _chunk_bytes(ds) for n, ds in datasets.items()},
         )
         return key
 
@@ -419,8 +421,13 @@ class RunRecorder:
         """Log an event at run time ``t_s`` (s). ``kind`` is 1-16 ASCII characters (see
         ``EVENT_KINDS``); ``source`` is cut to 32 utf-8 bytes; ``step`` is the 0-based step index
         or -1; ``message`` (utf-8) and ``data`` (raw bytes) are stored whole in ``/events_blob``.
-        Written at the next flush (events before :meth:`start` at start)."""
-        self._require_open()
+        Written at the next flush (events before :meth:`start` at start). After a refused flush
+        (disk nearly full) events are still accepted and written by :meth:`close`, so the file
+        tells how the run ended; after a failed HDF5 write this raises :class:`RecorderError`."""
+        if self._state != "open":
+            raise ValueError(f"recorder for {self.path} is closed")
+        if self._broken:
+            raise RecorderError(f"writing {self.path} failed earlier: {self._failure}")
         try:
             kind_b = kind.encode("ascii")
         except UnicodeEncodeError:
@@ -447,7 +454,7 @@ class RunRecorder:
         since the last flush. Cheap: call it often. Does nothing before :meth:`start`."""
         if run_time_s is not None and np.isfinite(run_time_s):
             self._run_time_s = max(self._run_time_s, float(run_time_s))
-        if self._started and self._state == "open" and self._wall_clock() - self._last_flush >= self.flush_interval_s:
+        if self._started and self._state == "open" and self._wall_clock() - self._last_flush >= self.flush_interval_s - FLUSH_SLACK_S:
             self.flush()
 
     def flush(self) -> None:
@@ -513,11 +520,13 @@ class RunRecorder:
             return
         flush_error: RecorderError | None = None
         if self._state == "open":
-            if not self._failure:
-                try:
+            try:
+                if not self._failure:
                     self.flush()
-                except RecorderError as exc:
-                    flush_error = exc
+                elif not self._broken:
+                    self._flush_events_only()
+            except RecorderError as exc:
+                flush_error = exc
             if not self._broken:
                 f, self._f = self._f, None
                 try:
@@ -620,24 +629,36 @@ class RunRecorder:
         self._broken = True
         self._f = None
 
-    def _check_space(self) -> None:
-        """Refuse a flush that might not fit on the disk or under the file-size limit (``ulimit -f``).
+    def _flush_events_only(self) -> None:
+        """After a refused flush: write the buffered events (small: the abort story) if they fit."""
+        for st in self._streams.values():
+            for parts in st.pending.values():
+                parts.clear()
+            st.pending_rows = st.pending_bytes = 0
+        need = RESERVE_BYTES // 4 + self._events_need()
+        problem = self._space_problem(need)
+        if problem:
+            raise RecorderError(f"writing {self.path} failed: {problem}; the last events were not written")
+        with self._io():
+            self._write_events()
+            self._heartbeat_ds[...] = np.array([time.time(), self._run_time_s])
+            self._file().flush()
 
-        HDF5 does not recover from a failed write (see :meth:`_abandon`); stopping just before
-        keeps the file consistent and closable with status ``aborted``. The estimate is the
-        buffered bytes plus one chunk per dataset plus 1 MiB for metadata and finalising.
-        """
-        pending = sum(st.pending_bytes for st in self._streams.values())
-        pending += len(self._blob_pending) + len(self._events) * EVENT_DTYPE.itemsize
-        need = pending + self._reserve_bytes
-        problem = ""
+    def _events_need(self) -> int:
+        """Bytes of new chunks writing the buffered events allocates."""
+        need = _new_chunks(EVENT_CHUNK_ROWS, self._events_on_disk, len(self._events)) * EVENT_CHUNK_ROWS * EVENT_DTYPE.itemsize
+        blob_on_disk = self._blob_total - len(self._blob_pending)
+        return need + _new_chunks(BLOB_CHUNK_BYTES, blob_on_disk, len(self._blob_pending)) * BLOB_CHUNK_BYTES
+
+    def _space_problem(self, need: int) -> str:
+        """Why ``need`` more bytes might not fit in the file (free space, ``ulimit -f``), or ""."""
         try:
             free = shutil.disk_usage(self.path.parent).free
         except OSError:
             free = None
         if free is not None and free < need:
-            problem = f"disk nearly full: {_mb(free)} free in {self.path.parent}, the next flush may need up to {_mb(need)}"
-        elif resource is not None:
+            return f"disk nearly full: {_mb(free)} free in {self.path.parent}, the next flush may need up to {_mb(need)}"
+        if resource is not None:
             soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
             if soft != resource.RLIM_INFINITY:
                 try:
@@ -645,10 +666,26 @@ class RunRecorder:
                 except OSError:
                     size = 0
                 if size + need > soft:
-                    problem = (
+                    return (
                         f"file size limit (ulimit -f) of {_mb(soft)} reached: the file has {_mb(size)}, "
                         f"the next flush may need up to {_mb(need)}"
                     )
+        return ""
+
+    def _check_space(self) -> None:
+        """Refuse a flush that might not fit on the disk or under the file-size limit (``ulimit -f``).
+
+        HDF5 does not recover from a failed write (see :meth:`_abandon`); stopping just before
+        keeps the file consistent and closable with status ``aborted``. The estimate is the size
+        of the chunks the flush allocates (HDF5 allocates whole chunks) plus 1 MiB for metadata
+        and finalising.
+        """
+        need = RESERVE_BYTES + self._events_need()
+        for st in self._streams.values():
+            if st.pending_rows:
+                for name in st.datasets:
+                    need += _new_chunks(st.chunk_rows[name], st.on_disk, st.pending_rows) * st.chunk_bytes[name]
+        problem = self._space_problem(need)
         if problem:
             self._failure = f"{problem}; recording stopped while the file is still consistent"
             raise RecorderError(f"writing {self.path} failed: {self._failure}")
@@ -685,6 +722,18 @@ class RunRecorder:
 
 
 # ---- helpers --------------------------------------------------------------------------------
+def _chunk_bytes(ds: h5py.Dataset) -> int:
+    """Size (bytes) of one chunk of ``ds``."""
+    return int(np.prod(ds.chunks, dtype=np.int64)) * ds.dtype.itemsize
+
+
+def _new_chunks(chunk_rows: int, rows: int, add: int) -> int:
+    """Chunks HDF5 allocates when ``add`` rows are appended to ``rows`` rows (chunks of ``chunk_rows``)."""
+    if add <= 0:
+        return 0
+    return -(-(rows + add) // chunk_rows) - -(-rows // chunk_rows)
+
+
 def _convert(a: np.ndarray, dt: np.dtype, key: str, name: str) -> np.ndarray:
     """Copy ``a`` as dtype ``dt``, refusing lossy kinds of conversion."""
     kind = a.dtype.kind
