@@ -173,22 +173,41 @@ def test_kill_9_during_realtime_run_leaves_readable_file(tmp_path):
     assert r.returncode == 0 and ("crashed" in status_line or "running" in status_line), status_line
 
 
-def test_sigint_aborts_to_safe_state(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_aborts_to_safe_state(tmp_path, sig):
     p, runs = _start_realtime(tmp_path, 60)
     try:
         path = _wait_for_rows(runs, 100)
-        p.send_signal(signal.SIGINT)
+        p.send_signal(sig)
         out, err = p.communicate(timeout=20)
     finally:
         if p.poll() is None:
             p.kill()
     assert p.returncode == 1, out + err
     assert "Traceback" not in out + err
-    assert "SIGINT" in out
+    assert sig.name in out
     s = read_run_summary(path)
-    assert s.status == "aborted" and "SIGINT" in s.abort_reason
+    assert s.status == "aborted" and sig.name in s.abort_reason
     kinds = [e.kind for e in s.events]
     assert "safe_state" in kinds and "abort" in kinds
     assert s.steps[-1].outcome == "aborted"
     # the stop-stream command went out and was acknowledged (0x92)
     assert any(e.kind == "reply" and e.data[2:3] == b"\x92" for e in s.events)
+
+
+def test_second_sigint_does_not_skip_safe_state(tmp_path):
+    p, runs = _start_realtime(tmp_path, 60)
+    try:
+        path = _wait_for_rows(runs, 100)
+        p.send_signal(signal.SIGINT)
+        time.sleep(0.02)
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=20)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 1 and "Traceback" not in out + err
+    assert "will not be skipped" in out
+    s = read_run_summary(path)
+    assert s.status == "aborted"
+    assert [e.kind for e in s.events].count("safe_state") == 1
