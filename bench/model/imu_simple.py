@@ -23,10 +23,12 @@ Defaults and their sources (see ``docs/simulation.md``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from bench.params import dataclass_from_dict
 
 EARTH_RATE_DPS = 360.0 / 86164.0905  # sidereal day, deg/s
 
@@ -49,12 +51,8 @@ class ImuModelParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "ImuModelParams":
-        """Build from a mapping (unknown keys raise ``KeyError`` naming them; the config loader locates it)."""
-        names = {f.name for f in fields(cls)}
-        unknown = set(data) - names
-        if unknown:
-            raise KeyError(", ".join(sorted(unknown)))
-        return cls(**data)
+        """Build from a mapping; unknown keys raise ``KeyError`` naming them."""
+        return dataclass_from_dict(cls, data)
 
 
 @dataclass

@@ -17,12 +17,13 @@ Defaults (``docs/simulation.md``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from bench.model.imu_simple import Environment, earth_rate_dps
+from bench.params import dataclass_from_dict
 
 
 @dataclass
@@ -35,11 +36,8 @@ class WorldParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "WorldParams":
-        names = {f.name for f in fields(cls)}
-        unknown = set(data) - names
-        if unknown:
-            raise KeyError(", ".join(sorted(unknown)))
-        return cls(**data)
+        """Build from a mapping; unknown keys raise ``KeyError`` naming them."""
+        return dataclass_from_dict(cls, data)
 
 
 class World:
