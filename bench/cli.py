@@ -113,6 +113,12 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
             InputError(f"instrument {n!r} is not in config {args.config} (has: {', '.join(config.instruments)})", procedure.instrument_locations.get(n, Location(procedure.path)), "instruments")
             for n in missing
         ])
+    if args.sim:
+        no_sim = [n for n in procedure.instruments if config.instruments[n].sim is None]
+        if no_sim:
+            raise InputErrors([
+                InputError("has no 'sim' section, so it cannot be simulated (--sim)", config.instruments[n].location, n) for n in no_sim
+            ])
     check_destination(args.runs_dir, _estimate_bytes(procedure))
 
     recorder = None

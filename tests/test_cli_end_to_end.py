@@ -244,3 +244,11 @@ def test_kill_9_soak_at_many_random_moments(tmp_path):
                 if st.rows:
                     assert data["time"][-1] <= s.heartbeat_run_time_s + 0.01
                     assert np.all(np.diff(data["counter"].astype(int)) % 65536 == 1)
+
+
+def test_sim_run_of_instrument_without_simulator_is_bad_input(tmp_path):
+    config = tmp_path / "hw.yaml"
+    config.write_text("schema: bench-config/1\ninstruments:\n  acs_board:\n    driver: acs_board\n    port: /dev/ttyUSB0\n")
+    r = run_cli("run", str(STARTUP), "--config", str(config), "--sim", "--runs-dir", str(tmp_path / "runs"))
+    assert r.returncode == 2 and r.stderr.startswith(f"{config}:4:")
+    assert "no 'sim' section" in r.stderr and not (tmp_path / "runs").exists()
