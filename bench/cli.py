@@ -44,6 +44,11 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("run_file", type=Path)
     i.add_argument("--events", type=int, default=40, help="how many of the last events to list (default 40)")
 
+    c = sub.add_parser("calibrate-bench", help="fit the stepper bench speed calibration n = k(1/v - b) from rotation timings")
+    c.add_argument("timings", type=Path, help="CSV with columns n, rotation_time_s (repeated rows per n)")
+    c.add_argument("--resolution", default="0.01 s", help="stopwatch resolution (default '0.01 s', ESTCube-2 section 3.2.2)")
+    c.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
+
     s = sub.add_parser("sim", help="simulated instruments")
     ssub = s.add_subparsers(dest="sim_command", metavar="SIMCOMMAND", parser_class=_Parser)
     sv = ssub.add_parser("serve", help="serve the config's simulated serial instruments on pseudo-terminals")
@@ -62,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_run(args, console)
         if args.command == "inspect":
             return cmd_inspect(args, console)
+        if args.command == "calibrate-bench":
+            return cmd_calibrate_bench(args, console)
         if args.command == "sim" and args.sim_command == "serve":
             return cmd_sim_serve(args, console)
         parser.print_help()
@@ -204,6 +211,37 @@ def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
 
     summary = read_run_summary(args.run_file)
     render_summary(summary, console, max_events=args.events)
+    return EXIT_OK
+
+
+# ---- calibrate-bench --------------------------------------------------------------------------
+def cmd_calibrate_bench(args: argparse.Namespace, console: Console) -> int:
+    import json
+
+    from bench.analysis.bench_speed_fit import fit_timings_file
+    from bench.units import to_units
+
+    resolution = to_units(args.resolution, "s", None, "--resolution")
+    if resolution < 0:
+        raise InputError("the stopwatch resolution must be >= 0 s", None, "--resolution")
+    fit = fit_timings_file(args.timings, resolution)
+    if args.json:
+        print(json.dumps(fit.as_json(), indent=2))
+        return EXIT_OK
+    t = Table(title=f"Stepper bench speed calibration from {args.timings} ({fit.rows} timings)")
+    for col in ("n", "repeats", "mean rotation time s", "std s", "speed deg/s", "fit speed deg/s"):
+        t.add_column(col, justify="right")
+    from drivers.stepper_speed import BenchSpeedCalibration
+
+    cal = BenchSpeedCalibration(fit.k, fit.b_s_per_rad)
+    for lv in fit.levels:
+        t.add_row(f"{lv['n']:g}", str(lv["repeats"]), f"{lv['mean_time_s']:.3f}", f"{lv['std_time_s']:.3f}",
+                  f"{lv['speed_dps']:.4f}", f"{cal.speed_for_n(lv['n']):.4f}")
+    console.print(t)
+    console.print(f"n = k·(1/v − b), 1/v in s/rad:  k = {fit.k:.4f} ± {fit.u_k:.4f},  b = {fit.b_s_per_rad:.4f} ± {fit.u_b:.4f} s/rad")
+    console.print(f"u_A = {fit.u_a_s:.3f} s, u_B = {fit.u_b_stopwatch_s:.4f} s, u_C = {fit.u_c_s:.3f} s")
+    console.print(f"speed uncertainty {fit.u_speed_dps:.4f} deg/s (extended, k = {fit.coverage_factor:.3f}: {fit.u_speed_extended_dps:.3f} deg/s); "
+                  f"n uncertainty {fit.u_n:.2f} (extended {fit.u_n_extended:.2f})")
     return EXIT_OK
 
 

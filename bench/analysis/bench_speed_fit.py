@@ -1,0 +1,116 @@
+"""Fit the stepper bench's speed calibration from rotation timings (ESTCube-2 thesis 3.2.1-3.2.2).
+
+Model (Eq. 3.1/3.8): t/2π = n/k + b, i.e. n = k·(1/v − b), 1/v in s/rad. Linear least squares of
+t/2π on n over every timing row (with equal repeats per n this equals the thesis fit of the means).
+Uncertainties follow section 3.2.2:
+
+* u_A (s): mean over n of the standard deviation of the timings at that n (population standard
+  deviation, as the thesis: it reproduces u_A = 0.153 s from Table 3.1);
+* u_B (s): stopwatch resolution Δ/√3 (Δ = 0.01 s in the thesis);
+* u_C = √(u_A² + u_B²);
+* u_speed (deg/s) = |d(360°/t)/dt|·u_C at the shortest rotation time (largest speed), Eq. 3.5;
+* u_n = |dn/dt|·u_C = k/(2π)·u_C, Eq. 3.7;
+* extended uncertainties with the Student-t factor for 95.45 % and (repeats − 1) degrees of
+  freedom (2.869 for 5 repeats, Eq. 3.6/3.9).
+
+``u_k`` and ``u_b`` are the standard errors of the least-squares fit (k = 1/slope, propagated).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from bench.csvsrc import read_numeric_csv
+from bench.errors import InputError, Location
+
+COVERAGE = 0.9545  # "confidence interval of 95.45%" (ESTCube-2 Eq. 3.6)
+
+
+@dataclass
+class BenchSpeedFit:
+    k: float
+    b_s_per_rad: float
+    u_k: float
+    u_b: float
+    u_a_s: float
+    u_b_stopwatch_s: float
+    u_c_s: float
+    u_speed_dps: float
+    u_n: float
+    coverage_factor: float
+    u_speed_extended_dps: float
+    u_n_extended: float
+    rows: int
+    levels: list[dict]
+
+    def as_json(self) -> dict:
+        return asdict(self)
+
+
+def fit_bench_speed(n: np.ndarray, rotation_time_s: np.ndarray, resolution_s: float = 0.01) -> BenchSpeedFit:
+    """Fit k and b from timings; ``resolution_s`` is the stopwatch resolution Δ (s).
+
+    Raises ``ValueError`` when fewer than two distinct n have timings or times are not positive.
+    """
+    n = np.asarray(n, dtype=float)
+    t = np.asarray(rotation_time_s, dtype=float)
+    if np.any(t <= 0):
+        raise ValueError("rotation times must be > 0 s")
+    levels = np.unique(n)
+    if levels.size < 2:
+        raise ValueError(f"need timings at two or more values of n, got {levels.size}")
+    y = t / (2 * math.pi)  # 1/v in s/rad
+    X = np.column_stack([n, np.ones_like(n)])
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    slope, intercept = float(coef[0]), float(coef[1])
+    if slope <= 0:
+        raise ValueError("rotation time does not grow with n: not a stepper bench speed relation")
+    dof = n.size - 2
+    if dof > 0:
+        resid = y - X @ coef
+        s2 = float(resid @ resid) / dof
+        cov = s2 * np.linalg.inv(X.T @ X)
+        u_slope, u_intercept = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+    else:
+        u_slope = u_intercept = float("nan")
+    k = 1.0 / slope
+    per_level = []
+    stds = []
+    repeats = []
+    for lv in levels:
+        tt = t[n == lv]
+        stds.append(float(np.std(tt)) if tt.size > 1 else float("nan"))
+        repeats.append(tt.size)
+        per_level.append({"n": float(lv), "repeats": int(tt.size), "mean_time_s": float(tt.mean()),
+                          "std_time_s": stds[-1], "speed_dps": 360.0 / float(tt.mean())})
+    valid = [s for s in stds if not math.isnan(s)]
+    u_a = float(np.mean(valid)) if valid else float("nan")
+    u_b_sw = resolution_s / math.sqrt(3)
+    u_c = math.sqrt(u_a**2 + u_b_sw**2) if valid else u_b_sw
+    t_min = float(min(p["mean_time_s"] for p in per_level))
+    u_speed = 360.0 / t_min**2 * u_c
+    u_n = k / (2 * math.pi) * u_c
+    dof_rep = min(repeats) - 1
+    kf = float(stats.t.ppf(0.5 + COVERAGE / 2, dof_rep)) if dof_rep > 0 else float("nan")
+    return BenchSpeedFit(
+        k=k, b_s_per_rad=intercept, u_k=u_slope / slope**2, u_b=u_intercept, u_a_s=u_a, u_b_stopwatch_s=u_b_sw,
+        u_c_s=u_c, u_speed_dps=u_speed, u_n=u_n, coverage_factor=kf, u_speed_extended_dps=kf * u_speed,
+        u_n_extended=kf * u_n, rows=int(n.size), levels=per_level,
+    )
+
+
+def fit_timings_file(path: str | Path, resolution_s: float = 0.01) -> BenchSpeedFit:
+    """Read a timings CSV (columns ``n``, ``rotation_time_s``; repeated rows per n) and fit it."""
+    values, lines = read_numeric_csv(path, ["n", "rotation_time_s"])
+    bad = np.flatnonzero(values["rotation_time_s"] <= 0)
+    if bad.size:
+        raise InputError("rotation time must be > 0 s", Location(path, int(lines[bad[0]])), "rotation_time_s")
+    try:
+        return fit_bench_speed(values["n"], values["rotation_time_s"], resolution_s)
+    except ValueError as exc:
+        raise InputError(str(exc), Location(path)) from None
