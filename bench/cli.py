@@ -108,7 +108,6 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     from bench.record import RunRecorder, check_destination
     from bench.runner import Runner
     from bench.runner.progress import RichProgress
-    from drivers.acs_protocol import frame_name
 
     if args.realtime and not args.sim:
         raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
@@ -132,9 +131,9 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     lab = None
     runner: Runner | None = None
 
-    def traffic(name: str, direction: str, ftype: int, raw: bytes) -> None:
+    def traffic(name: str, direction: str, what: str, raw: bytes) -> None:
         if recorder is not None and runner is not None:
-            recorder.event(direction, name, frame_name(ftype), t_s=lab.clock.now() if lab else 0.0, step=runner.current_step, data=raw)
+            recorder.event(direction, name, what, t_s=lab.clock.now() if lab else 0.0, step=runner.current_step, data=raw)
 
     recorder = RunRecorder.create(
         args.runs_dir,

@@ -14,11 +14,12 @@ from bench.model.imu_simple import ImuModelParams
 from bench.sim.world import WorldParams
 from bench.units import to_units
 from bench.yamlsrc import Fields, Node, load_yaml
+from drivers.stepper_speed import BenchSpeedCalibration
 
 CONFIG_SCHEMA = "bench-config/1"
 SENSOR_MODEL_SCHEMA = "bench-sensor-model/1"
-DRIVERS = ("acs_board",)
-SIM_BACKENDS = ("acs_board",)
+DRIVERS = ("acs_board", "stepper_bench")
+SIM_BACKENDS = ("acs_board", "stepper_bench")
 
 
 @dataclass
@@ -29,6 +30,7 @@ class SimConfig:
     bit_fail_mask: int = 0
     model: ImuModelParams = field(default_factory=ImuModelParams)
     model_path: str = ""
+    speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
 
 
 @dataclass
@@ -40,6 +42,7 @@ class InstrumentConfig:
     timeout_s: float = 0.5
     sim: SimConfig | None = None
     location: Location | None = None
+    speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
 
 
 @dataclass
@@ -133,10 +136,26 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
     sim = None
     if (n := f.node_at("sim")) is not None:
         sim = _sim(name, n, base, errors)
+    cal = _speed_calibration(f.node_at("speed_calibration"), errors)
     f.check_unknown()
     if len(errors) > before:
         return None
-    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location)
+    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal)
+
+
+def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpeedCalibration:
+    """``speed_calibration: {k: 19.5154, b: 0.4088 s/rad}`` (stepper bench, Eq. 3.1); defaults: the thesis fit."""
+    if node is None:
+        return BenchSpeedCalibration()
+    f = Fields(node, "speed_calibration", errors)
+    k = f.get("k", (int, float), default=BenchSpeedCalibration.k)
+    b = BenchSpeedCalibration.b_s_per_rad
+    if (n := f.node_at("b")) is not None:
+        b = _quantity(n, "s/rad", "b", errors, b)
+    if isinstance(k, (int, float)) and not k > 0:
+        errors.append(InputError("k must be > 0", f.map["k"].location, "k"))
+    f.check_unknown()
+    return BenchSpeedCalibration(float(k), b)
 
 
 def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConfig | None:
@@ -148,6 +167,7 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
     sim.seed = f.get("seed", int, default=0)
     sim.serial = f.get("serial", str, default=sim.serial)
     sim.bit_fail_mask = f.get("bit_fail_mask", int, default=0)
+    sim.speed_calibration = _speed_calibration(f.node_at("speed_calibration"), errors)
     model_rel = f.get("sensor_model", str)
     if model_rel is not None:
         sim.model_path = str(base / model_rel)

@@ -15,16 +15,20 @@ from bench.errors import InputError
 from bench.sim import registry
 from bench.sim.factory import build_devices
 from drivers.acs_board import AcsBoard
+from drivers.stepper_bench import StepperBench
 
-TrafficSink = Callable[[str, str, int, bytes], None]
-"""Called with (instrument, "command" | "reply", frame type, raw bytes)."""
+DRIVER_CLASSES = {"acs_board": AcsBoard, "stepper_bench": StepperBench}
+"""Config ``driver`` name -> driver class (each has ``open(url, baudrate=, timeout_s=, on_traffic=)``)."""
+
+TrafficSink = Callable[[str, str, str, bytes], None]
+"""Called with (instrument, "command" | "reply", what (frame or command name), raw bytes)."""
 
 
 @dataclass
 class Lab:
     clock: Clock
     mode: str  # "sim" | "hardware"
-    instruments: dict[str, AcsBoard]
+    instruments: dict[str, AcsBoard | StepperBench]
     ports: dict[str, str]
     sims: dict[str, object] = field(default_factory=dict)
 
@@ -60,7 +64,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             ports[name] = registry.register(name, dev)
     else:
         ports = {name: config.instruments[name].port for name in names}
-    instruments: dict[str, AcsBoard] = {}
+    instruments: dict[str, AcsBoard | StepperBench] = {}
     lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims)
     try:
         for name in names:
@@ -68,7 +72,9 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             hook = None
             if on_traffic is not None:
                 hook = (lambda n: (lambda d, t, raw: on_traffic(n, d, t, raw)))(name)
-            instruments[name] = AcsBoard.open(ports[name], baudrate=inst.baudrate, timeout_s=inst.timeout_s, on_traffic=hook)
+            extra = {"calibration": inst.speed_calibration} if inst.driver == "stepper_bench" else {}
+            cls = DRIVER_CLASSES[inst.driver]
+            instruments[name] = cls.open(ports[name], baudrate=inst.baudrate, timeout_s=inst.timeout_s, on_traffic=hook, **extra)
     except Exception:
         lab.close()
         raise

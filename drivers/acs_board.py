@@ -23,8 +23,8 @@ from drivers import acs_protocol as proto
 from drivers.acs_protocol import DecodedBatch, FrameType, NakCode
 from drivers.transport import link_bytes_per_s, open_serial
 
-TrafficHook = Callable[[str, int, bytes], None]
-"""Called with ("command" | "reply", frame type, raw frame bytes) for every command and its answer."""
+TrafficHook = Callable[[str, str, bytes], None]
+"""Called with ("command" | "reply", frame name, raw frame bytes) for every command and its answer."""
 
 DEFAULT_BAUDRATE = 115200
 DEFAULT_TIMEOUT_S = 0.5
@@ -51,6 +51,7 @@ class AcsBoard:
     """One ACS/sensor board on a serial port (hardware, ``sim://`` simulator or pseudo-terminal)."""
 
     kind = "acs_board"
+    streams = True  # the runner records a data stream of this instrument
 
     def __init__(
         self,
@@ -173,4 +174,4 @@ class AcsBoard:
 
     def _traffic(self, direction: str, ftype: int, raw: bytes) -> None:
         if self.on_traffic is not None:
-            self.on_traffic(direction, ftype, raw)
+            self.on_traffic(direction, proto.frame_name(ftype), raw)

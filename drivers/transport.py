@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import serial
 
-from bench.errors import InstrumentError
+from bench.errors import InstrumentError, InstrumentTimeout, ProtocolError
 
 
 def open_serial(url: str, baudrate: int = 115200, timeout_s: float = 0.5) -> serial.SerialBase:
@@ -33,3 +33,66 @@ def open_serial(url: str, baudrate: int = 115200, timeout_s: float = 0.5) -> ser
 def link_bytes_per_s(baudrate: int) -> float:
     """Payload bytes per second of an 8N1 UART link (10 bits on the wire per byte)."""
     return baudrate / 10.0
+
+
+class LineChannel:
+    """Line-oriented command/response over a serial port, GRBL style: each command line is answered
+    by zero or more information lines and then ``ok`` or ``error:N``.
+
+    ``on_traffic(direction, name, raw)`` sees every command line sent and every line received.
+    Waiting is bounded both by the port timeout (no bytes at all) and by a byte budget (the
+    link's capacity over the timeout), so a chatty device cannot hold a command forever.
+    """
+
+    def __init__(self, port: serial.SerialBase, timeout_s: float, name: str, on_traffic=None, eol: bytes = b"\n"):
+        self.port = port
+        self.timeout_s = timeout_s
+        self.name = name
+        self.on_traffic = on_traffic
+        self.eol = eol
+        self._rx = bytearray()
+
+    def send_realtime(self, byte: bytes) -> None:
+        """A one-byte realtime command (no line end, no reply)."""
+        self._write(byte, repr(byte))
+
+    def transact(self, line: str) -> list[str]:
+        """Send ``line``; return the information lines received before ``ok``.
+
+        Raises :class:`ProtocolError` on ``error:N`` and :class:`InstrumentTimeout` without an answer.
+        """
+        self._write(line.encode("ascii") + self.eol, line)
+        info: list[str] = []
+        budget = max(256, int(link_bytes_per_s(self.port.baudrate) * self.timeout_s))
+        received = 0
+        while received <= budget:
+            while b"\n" in self._rx:
+                raw, _, rest = self._rx.partition(b"\n")
+                self._rx = bytearray(rest)
+                text = raw.decode("ascii", "replace").strip()
+                if not text:
+                    continue
+                if self.on_traffic is not None:
+                    self.on_traffic("reply", text, raw + b"\n")
+                if text == "ok":
+                    return info
+                if text.startswith("error:"):
+                    raise ProtocolError(f"{self.name} refused {line!r}: {text}")
+                info.append(text)
+            try:
+                chunk = self.port.read(max(1, self.port.in_waiting))
+            except serial.SerialException as exc:
+                raise InstrumentError(f"{self.name}: reading the answer to {line!r} failed: {exc}") from None
+            if not chunk:
+                break
+            received += len(chunk)
+            self._rx += chunk
+        raise InstrumentTimeout(f"{self.name}: no answer to {line!r} within {self.timeout_s:g} s")
+
+    def _write(self, data: bytes, name: str) -> None:
+        try:
+            self.port.write(data)
+        except serial.SerialException as exc:
+            raise InstrumentError(f"{self.name}: writing {name} failed: {exc}") from None
+        if self.on_traffic is not None:
+            self.on_traffic("command", name, data)

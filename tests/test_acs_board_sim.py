@@ -150,11 +150,11 @@ def test_silent_port_times_out_after_retries():
     board.on_traffic = lambda d, t, raw: sent.append((d, t))
     with pytest.raises(InstrumentTimeout, match="IDENTIFY.*3 attempt"):
         board.identify()
-    assert sent == [("command", 0x10)] * 3
+    assert sent == [("command", "IDENTIFY")] * 3
     sent.clear()
     with pytest.raises(InstrumentTimeout, match="1 attempt"):
         board.start_stream()  # not idempotent: never retried
-    assert sent == [("command", 0x11)]
+    assert sent == [("command", "START_STREAM")]
 
 
 def test_missed_reply_costs_virtual_time_not_wall_time(sim_board):

@@ -123,6 +123,8 @@ class Runner:
             info = drv.identify()
             info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=str(drv.port.baudrate))
             self.rec.add_instrument(name, {k: str(v) for k, v in info.items()})
+            if not drv.streams:
+                continue  # an instrument without a data stream (stepper bench)
             self.stream_keys[name] = self.rec.add_stream(name, ACS_COLUMNS)
             self.stream_stats[name] = {"frames": 0, "crc_errors": 0, "dropped_frames": 0, "garbage_bytes": 0}
             self._time_offset[name] = None
@@ -170,8 +172,9 @@ class Runner:
         for name, drv in self.lab.instruments.items():
             try:
                 drv.safe_state()
-                self._drain(name)
-                self._event("safe_state", name, "streaming stopped")
+                if name in self.stream_keys:
+                    self._drain(name)
+                self._event("safe_state", name, "streaming stopped" if name in self.stream_keys else "stopped")
             except (BenchError, OSError, ValueError) as exc:
                 self._event("error", name, f"safe state failed: {_describe(exc)}")
                 self.progress.message(f"{name}: safe state failed: {_describe(exc)}")

@@ -7,11 +7,13 @@ import numpy as np
 from bench.config import LabConfig
 from bench.model.imu_simple import SimpleImuModel
 from bench.sim.acs_board import AcsBoardIdentity, AcsBoardSim
+from bench.sim.stepper_bench import StepperBenchSim
 from bench.sim.world import World
 
 
-def build_devices(config: LabConfig, clock, names: list[str] | None = None) -> dict[str, AcsBoardSim]:
-    """One simulator per instrument (restricted to ``names`` if given), keyed by instrument name.
+def build_devices(config: LabConfig, clock, names: list[str] | None = None) -> dict[str, object]:
+    """One simulator per instrument (restricted to ``names`` if given), keyed by instrument name,
+    all on one world: the stepper bench turns the stage the sensor board sits on.
 
     Raises ``ValueError`` naming an instrument that has no ``sim`` section.
     """
@@ -22,6 +24,9 @@ def build_devices(config: LabConfig, clock, names: list[str] | None = None) -> d
             continue
         if inst.sim is None:
             raise ValueError(f"instrument {name!r} has no 'sim' section in {config.path}; it cannot be simulated")
+        if inst.sim.backend == "stepper_bench":
+            devices[name] = StepperBenchSim(clock, world.stage, inst.sim.speed_calibration, inst.sim.serial, inst.baudrate)
+            continue
         rng = np.random.default_rng(inst.sim.seed)
         model = SimpleImuModel(inst.sim.model, rng)
         devices[name] = AcsBoardSim(

@@ -1,7 +1,7 @@
 """The simulated physical world the device simulators read.
 
-In this first version the world is a level, stationary bench in a room: constant ambient
-temperature, Earth rate, gravity and the local geomagnetic field. Later issues add the chamber,
+The world is a level unit in a room: constant ambient temperature, Earth rate, gravity and the
+local geomagnetic field, on a stage (the stepper bench) that can turn it about its z axis. Later issues add the chamber,
 the rate table and the stepper bench; device simulators only ever call :meth:`World.environment`
 and :meth:`World.unit_temperature_c`, so they will not change.
 
@@ -24,6 +24,7 @@ import numpy as np
 
 from bench.model.imu_simple import Environment, earth_rate_dps
 from bench.params import dataclass_from_dict
+from bench.sim.stage import RotatingStage
 
 
 @dataclass
@@ -41,20 +42,39 @@ class WorldParams:
 
 
 class World:
-    """A level, stationary unit on a bench in a room at constant temperature."""
+    """A level unit in a room at constant temperature, on a stage that can turn about its z axis."""
 
     def __init__(self, params: WorldParams):
         self.p = params
-        self._env = Environment(
-            rate_dps=earth_rate_dps(params.latitude_deg),
-            specific_force_g=np.array([0.0, 0.0, 1.0]),
-            field_ut=np.asarray(params.field_ut, dtype=float),
-        )
+        self.stage = RotatingStage()
+        self._earth = earth_rate_dps(params.latitude_deg)
+        self._field = np.asarray(params.field_ut, dtype=float)
+        self._env = Environment(rate_dps=self._earth, specific_force_g=np.array([0.0, 0.0, 1.0]), field_ut=self._field)
 
     def environment(self, t_s: np.ndarray) -> Environment:
-        """Rate, specific force and field seen by the unit at run times ``t_s`` (s); broadcastable (3,) here."""
-        return self._env
+        """Rate, specific force and field seen by the unit at run times ``t_s`` (s).
+
+        Stationary: (3,) vectors. Once the stage has turned: (n, 3) arrays, with Earth rate and
+        field rotated into the turned sensor frame and the stage rate added on z.
+        """
+        if not self.stage.ever_moved:
+            return self._env
+        t = np.asarray(t_s, dtype=float)
+        theta = np.radians(self.stage.angle_deg(t))
+        c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+        rate = _rotate_z(self._earth, c, s)
+        rate[:, 2] += self.stage.rate_dps(t)
+        return Environment(rate_dps=rate, specific_force_g=self._env.specific_force_g, field_ut=_rotate_z(self._field, c, s))
 
     def unit_temperature_c(self, t_s: np.ndarray) -> np.ndarray:
         """Temperature of the unit under test (°C) at run times ``t_s`` (s)."""
         return np.full(np.shape(t_s), self.p.ambient_temp_c, dtype=float)
+
+
+def _rotate_z(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """World vector ``v`` (3,) expressed in a sensor frame turned by angle θ about z (cos c, sin s)."""
+    out = np.empty((c.shape[0], 3))
+    out[:, 0] = c[:, 0] * v[0] + s[:, 0] * v[1]
+    out[:, 1] = -s[:, 0] * v[0] + c[:, 0] * v[1]
+    out[:, 2] = v[2]
+    return out
