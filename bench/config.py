@@ -18,8 +18,8 @@ from drivers.stepper_speed import BenchSpeedCalibration
 
 CONFIG_SCHEMA = "bench-config/1"
 SENSOR_MODEL_SCHEMA = "bench-sensor-model/1"
-DRIVERS = ("acs_board", "stepper_bench")
-SIM_BACKENDS = ("acs_board", "stepper_bench")
+DRIVERS = ("acs_board", "stepper_bench", "thermocouple_reader")
+SIM_BACKENDS = ("acs_board", "stepper_bench", "thermocouple_reader")
 
 
 @dataclass
@@ -31,6 +31,7 @@ class SimConfig:
     model: ImuModelParams = field(default_factory=ImuModelParams)
     model_path: str = ""
     speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
+    open_channels: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -167,6 +168,11 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
     sim.seed = f.get("seed", int, default=0)
     sim.serial = f.get("serial", str, default=sim.serial)
     sim.bit_fail_mask = f.get("bit_fail_mask", int, default=0)
+    opened = f.get("open_channels", list, default=[])
+    if not all(isinstance(c, int) and not isinstance(c, bool) for c in opened):
+        errors.append(InputError("expected a list of channel numbers such as [104]", f.map["open_channels"].location, "open_channels"))
+    else:
+        sim.open_channels = opened
     sim.speed_calibration = _speed_calibration(f.node_at("speed_calibration"), errors)
     model_rel = f.get("sensor_model", str)
     if model_rel is not None:

@@ -16,8 +16,9 @@ from bench.sim import registry
 from bench.sim.factory import build_devices
 from drivers.acs_board import AcsBoard
 from drivers.stepper_bench import StepperBench
+from drivers.thermocouple_reader import ThermocoupleReader
 
-DRIVER_CLASSES = {"acs_board": AcsBoard, "stepper_bench": StepperBench}
+DRIVER_CLASSES = {"acs_board": AcsBoard, "stepper_bench": StepperBench, "thermocouple_reader": ThermocoupleReader}
 """Config ``driver`` name -> driver class (each has ``open(url, baudrate=, timeout_s=, on_traffic=)``)."""
 
 TrafficSink = Callable[[str, str, str, bytes], None]
@@ -28,7 +29,7 @@ TrafficSink = Callable[[str, str, str, bytes], None]
 class Lab:
     clock: Clock
     mode: str  # "sim" | "hardware"
-    instruments: dict[str, AcsBoard | StepperBench]
+    instruments: dict[str, AcsBoard | StepperBench | ThermocoupleReader]
     ports: dict[str, str]
     sims: dict[str, object] = field(default_factory=dict)
 
@@ -64,7 +65,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             ports[name] = registry.register(name, dev)
     else:
         ports = {name: config.instruments[name].port for name in names}
-    instruments: dict[str, AcsBoard | StepperBench] = {}
+    instruments: dict[str, AcsBoard | StepperBench | ThermocoupleReader] = {}
     lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims)
     try:
         for name in names:

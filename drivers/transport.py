@@ -36,8 +36,8 @@ def link_bytes_per_s(baudrate: int) -> float:
 
 
 class LineChannel:
-    """Line-oriented command/response over a serial port, GRBL style: each command line is answered
-    by zero or more information lines and then ``ok`` or ``error:N``.
+    """Line-oriented commands over a serial port: GRBL style (:meth:`transact`: information lines,
+    then ``ok`` or ``error:N``) or SCPI style (:meth:`send` without answer, :meth:`query` with one).
 
     ``on_traffic(direction, name, raw)`` sees every command line sent and every line received.
     Waiting is bounded both by the port timeout (no bytes at all) and by a byte budget (the
@@ -56,6 +56,15 @@ class LineChannel:
         """A one-byte realtime command (no line end, no reply)."""
         self._write(byte, repr(byte))
 
+    def send(self, line: str) -> None:
+        """Send a command line that has no answer (SCPI commands without ``?``)."""
+        self._write(line.encode("ascii") + self.eol, line)
+
+    def query(self, line: str) -> str:
+        """Send ``line`` and return the one answer line (SCPI queries)."""
+        self._write(line.encode("ascii") + self.eol, line)
+        return self._read_line(line, self._budget())[0]
+
     def transact(self, line: str) -> list[str]:
         """Send ``line``; return the information lines received before ``ok``.
 
@@ -63,29 +72,39 @@ class LineChannel:
         """
         self._write(line.encode("ascii") + self.eol, line)
         info: list[str] = []
-        budget = max(256, int(link_bytes_per_s(self.port.baudrate) * self.timeout_s))
-        received = 0
-        while received <= budget:
+        budget = self._budget()
+        while True:
+            text, budget = self._read_line(line, budget)
+            if text == "ok":
+                return info
+            if text.startswith("error:"):
+                raise ProtocolError(f"{self.name} refused {line!r}: {text}")
+            info.append(text)
+
+    def _budget(self) -> int:
+        """Bytes the link can carry within the timeout: the most we read waiting for one answer."""
+        return max(256, int(link_bytes_per_s(self.port.baudrate) * self.timeout_s))
+
+    def _read_line(self, line: str, budget: int) -> tuple[str, int]:
+        """The next non-empty received line (stripped) and the budget left; timeout when none comes."""
+        while True:
             while b"\n" in self._rx:
                 raw, _, rest = self._rx.partition(b"\n")
                 self._rx = bytearray(rest)
                 text = raw.decode("ascii", "replace").strip()
-                if not text:
-                    continue
-                if self.on_traffic is not None:
-                    self.on_traffic("reply", text, raw + b"\n")
-                if text == "ok":
-                    return info
-                if text.startswith("error:"):
-                    raise ProtocolError(f"{self.name} refused {line!r}: {text}")
-                info.append(text)
+                if text:
+                    if self.on_traffic is not None:
+                        self.on_traffic("reply", text, raw + b"\n")
+                    return text, budget
+            if budget < 0:
+                break
             try:
                 chunk = self.port.read(max(1, self.port.in_waiting))
             except serial.SerialException as exc:
                 raise InstrumentError(f"{self.name}: reading the answer to {line!r} failed: {exc}") from None
             if not chunk:
                 break
-            received += len(chunk)
+            budget -= len(chunk)
             self._rx += chunk
         raise InstrumentTimeout(f"{self.name}: no answer to {line!r} within {self.timeout_s:g} s")
 

@@ -8,6 +8,7 @@ from bench.config import LabConfig
 from bench.model.imu_simple import SimpleImuModel
 from bench.sim.acs_board import AcsBoardIdentity, AcsBoardSim
 from bench.sim.stepper_bench import StepperBenchSim
+from bench.sim.thermocouple_reader import ThermocoupleReaderSim
 from bench.sim.world import World
 
 
@@ -24,6 +25,9 @@ def build_devices(config: LabConfig, clock, names: list[str] | None = None) -> d
             continue
         if inst.sim is None:
             raise ValueError(f"instrument {name!r} has no 'sim' section in {config.path}; it cannot be simulated")
+        if inst.sim.backend == "thermocouple_reader":
+            devices[name] = ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate)
+            continue
         if inst.sim.backend == "stepper_bench":
             devices[name] = StepperBenchSim(clock, world.stage, inst.sim.speed_calibration, inst.sim.serial, inst.baudrate)
             continue
