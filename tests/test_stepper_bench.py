@@ -114,3 +114,17 @@ def test_calibration_mismatch_between_driver_and_bench_shows(lab):
     clock.sleep(100.0)
     angle = bench.status()["angle_deg"]
     assert abs(angle - 200.0) > 5.0
+
+
+def test_realtime_bytes_act_inside_a_line(lab):
+    clock, devices, urls = lab
+    port = serial.serial_for_url(urls["stepper_bench"], baudrate=115200, timeout=0.1)
+    port.write(b"$N=3")
+    port.write(b"?")  # realtime status in the middle of a line: answered at once
+    assert port.readline() == b"<Idle|N:0|Pos:0.000>\r\n"
+    port.write(b"00\n$RUN\n")  # the line continues: $N=300
+    assert port.readline() == b"ok\r\n" and port.readline() == b"ok\r\n"
+    assert devices["stepper_bench"].running and devices["stepper_bench"].n == 300
+    port.write(b"\x18")
+    assert port.readline().startswith(b"StepperBench sim")
+    assert not devices["stepper_bench"].running

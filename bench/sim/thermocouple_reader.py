@@ -15,9 +15,8 @@ an open thermocouple (fault hook ``open_channels``) reads +9.9E+37 when the open
 
 from __future__ import annotations
 
-import threading
-
 from bench import __version__
+from bench.sim.line_device import LineDeviceSim
 from bench.sim.scpi import header_matches, parse_channel_list
 from bench.sim.world import World
 
@@ -25,17 +24,13 @@ OVERLOAD = 9.9e37
 CHANNELS = range(101, 121)  # 34901A: 20 channels
 
 
-class ThermocoupleReaderSim:
+class ThermocoupleReaderSim(LineDeviceSim):
     def __init__(self, clock, world: World, serial_number: str = "SIM-0003", open_channels: tuple[int, ...] = (),
                  baudrate: int = 57600):
-        self.clock = clock
+        super().__init__(clock, baudrate)
         self.world = world
         self.serial_number = serial_number
         self.open_channels = set(open_channels)
-        self.baudrate = baudrate
-        self._in = bytearray()
-        self._out = bytearray()
-        self._lock = threading.RLock()
         self._reset()
 
     def _reset(self) -> None:
@@ -44,46 +39,15 @@ class ThermocoupleReaderSim:
         self.scan: list[int] = []
         self.errors: list[str] = []
 
-    # ---- SerialDevice -----------------------------------------------------------------------
-    def set_baudrate(self, baudrate: int) -> None:
-        self.baudrate = int(baudrate)
-
-    def discard_input(self) -> None:
-        with self._lock:
-            self._in.clear()
-
-    def take_output(self, t_s: float, max_bytes: int | None = None) -> bytes:
-        with self._lock:
-            k = len(self._out) if max_bytes is None else min(max_bytes, len(self._out))
-            data = bytes(self._out[:k])
-            del self._out[:k]
-            return data
-
-    def pending_bytes(self, t_s: float) -> int:
-        return len(self._out)
-
-    def next_output_time(self) -> float | None:
-        return self.clock.now() if self._out else None
-
-    def receive(self, data: bytes) -> None:
-        with self._lock:
-            for b in bytes(data):
-                if b in (0x0A, 0x0D):
-                    if self._in:
-                        self._line(self._in.decode("ascii", "replace").strip())
-                        self._in.clear()
-                elif len(self._in) < 256:
-                    self._in.append(b)
-
     # ---- SCPI -------------------------------------------------------------------------------
     def _error(self, code: int, text: str) -> None:
         if len(self.errors) < 10:
             self.errors.append(f'{code:+d},"{text}"')
 
     def _answer(self, text: str) -> None:
-        self._out += text.encode("ascii") + b"\n"
+        self.reply(text, b"\n")
 
-    def _line(self, line: str) -> None:
+    def on_line(self, line: str) -> None:
         for command in line.split(";"):
             command = command.strip()
             if command:
