@@ -169,9 +169,11 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     try:
         result = runner.run()
     finally:
-        for s, h in old.items():
-            signal.signal(s, h)
         lab.close()
+        if state["signals"] == 0:
+            for s, h in old.items():
+                signal.signal(s, h)
+        # after an operator stop, further signals only repeat the stop: the process is on its way out
     _print_summary(console, result, recorder.path, args.sim and not args.realtime)
     return EXIT_OK if result.ok else EXIT_FAILED
 
