@@ -170,10 +170,10 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
         result = runner.run()
     finally:
         lab.close()
-        if state["signals"] == 0:
-            for s, h in old.items():
-                signal.signal(s, h)
-        # after an operator stop, further signals only repeat the stop: the process is on its way out
+        for s, h in old.items():
+            # after an operator stop the process is on its way out: further signals are ignored, even
+            # during interpreter shutdown (which would otherwise die of them)
+            signal.signal(s, signal.SIG_IGN if state["signals"] else h)
     _print_summary(console, result, recorder.path, args.sim and not args.realtime)
     return EXIT_OK if result.ok else EXIT_FAILED
 

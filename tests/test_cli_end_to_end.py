@@ -199,9 +199,12 @@ def test_second_sigint_does_not_skip_safe_state(tmp_path):
     p, runs = _start_realtime(tmp_path, 60)
     try:
         path = _wait_for_rows(runs, 100)
-        p.send_signal(signal.SIGINT)
-        time.sleep(0.02)
-        p.send_signal(signal.SIGINT)
+        # an impatient operator: Ctrl-C again and again while the run stops and the process exits
+        for _ in range(100):
+            if p.poll() is not None:
+                break
+            p.send_signal(signal.SIGINT)
+            time.sleep(0.002)
         out, err = p.communicate(timeout=20)
     finally:
         if p.poll() is None:
