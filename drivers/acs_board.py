@@ -99,8 +99,8 @@ class AcsBoard:
 
     def set_moving_average(self, n: int) -> None:
         """Set the moving-average buffer length N (1..100 samples; the board pre-fills the buffer)."""
-        if not 1 <= n <= 100:
-            raise ValueError(f"moving-average length {n} outside 1..100")
+        if not 1 <= n <= proto.MOVING_AVG_MAX:
+            raise ValueError(f"moving-average length {n} outside 1..{proto.MOVING_AVG_MAX}")
         self._transact(FrameType.SET_MOVING_AVG, bytes([int(n)]))
 
     def start_stream(self) -> None:
@@ -141,7 +141,7 @@ class AcsBoard:
         name = FrameType(command).name
         attempts = 1 + (self.retries if idempotent else 0)
         budget = max(256, int(link_bytes_per_s(self.port.baudrate) * self.timeout_s))
-        for attempt in range(attempts):
+        for _ in range(attempts):
             try:
                 self.port.write(frame)
             except serial.SerialException as exc:
@@ -168,8 +168,6 @@ class AcsBoard:
                             reason = NakCode(code).name if code in NakCode._value2member_map_ else f"code {code}"
                             raise ProtocolError(f"acs_board refused {name}: {reason}")
                         return rpayload
-            if attempt + 1 < attempts:
-                continue
         raise InstrumentTimeout(f"acs_board: no reply to {name} within {self.timeout_s:g} s ({attempts} attempt(s))")
 
     def _traffic(self, direction: str, ftype: int, raw: bytes) -> None:

@@ -37,6 +37,12 @@ class FrameType(IntEnum):
 
 COMMANDS = tuple(t for t in FrameType if 0x10 <= t < 0x7F)
 KNOWN_TYPES = frozenset([int(FrameType.DATA), int(FrameType.NAK)] + [int(c) for c in COMMANDS] + [int(c) | 0x80 for c in COMMANDS])
+COMMAND_PAYLOAD_LEN = {
+    FrameType.IDENTIFY: 0, FrameType.START_STREAM: 0, FrameType.STOP_STREAM: 0, FrameType.SET_ODR: 2,
+    FrameType.SET_MOVING_AVG: 1, FrameType.RUN_BIT: 0, FrameType.SENSOR_POWER: 1, FrameType.GET_CONFIG: 0,
+}
+"""Payload length (bytes) of every command; any other length is NAKed BAD_LENGTH."""
+MOVING_AVG_MAX = 100  # moving-average lengths 1..100 (ESTCube-2 section 3.3 swept N = 1..100)
 
 
 class NakCode(IntEnum):

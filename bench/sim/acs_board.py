@@ -97,11 +97,7 @@ class AcsBoardSim:
         self._reply(FrameType.NAK, bytes([command & 0xFF, int(code)]))
 
     def _handle(self, ftype: int, payload: bytes) -> None:
-        expected_len = {
-            FrameType.IDENTIFY: 0, FrameType.START_STREAM: 0, FrameType.STOP_STREAM: 0,
-            FrameType.SET_ODR: 2, FrameType.SET_MOVING_AVG: 1, FrameType.RUN_BIT: 0,
-            FrameType.SENSOR_POWER: 1, FrameType.GET_CONFIG: 0,
-        }
+        expected_len = proto.COMMAND_PAYLOAD_LEN
         if ftype not in expected_len:
             self._nak(ftype, NakCode.UNKNOWN_COMMAND)
             return
@@ -137,7 +133,7 @@ class AcsBoardSim:
             self._reply(ack)
         elif ftype == FrameType.SET_MOVING_AVG:
             n = payload[0]
-            if not 1 <= n <= 100:  # ESTCube-2 section 3.3 swept N = 1..100
+            if not 1 <= n <= proto.MOVING_AVG_MAX:
                 self._nak(ftype, NakCode.BAD_VALUE)
                 return
             self.moving_avg_n = n
