@@ -156,6 +156,7 @@ class AcsBoardSim:
             if not on:
                 self.streaming = False
             self.sensor_power = bool(on)
+            self.world.set_unit_power(now, self.sensor_power)
             self._reply(ack)
         elif ftype == FrameType.GET_CONFIG:
             self._reply(

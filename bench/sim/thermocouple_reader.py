@@ -122,7 +122,7 @@ class ThermocoupleReaderSim(LineDeviceSim):
 
     def read_values(self) -> list[float]:
         """One scan: °C per channel in scan order (overload value for open, checked channels)."""
-        t = float(self.world.unit_temperature_c([self.clock.now()])[0])
+        t = self.world.chamber.mount_temp_c(self.clock.now())  # thermocouples sit on the mount (NPSAT1 IV.B)
         out = []
         for c in self.scan:
             if c in self.open_channels:

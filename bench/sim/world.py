@@ -1,9 +1,10 @@
 """The simulated physical world the device simulators read.
 
-The world is a level unit in a room: constant ambient temperature, Earth rate, gravity and the
-local geomagnetic field, on a stage (the stepper bench) that can turn it about its z axis. Later issues add the chamber,
-the rate table and the stepper bench; device simulators only ever call :meth:`World.environment`
-and :meth:`World.unit_temperature_c`, so they will not change.
+The world is a unit on a mount inside a thermal-vacuum chamber (:class:`bench.sim.chamber.Chamber`;
+with no chamber instrument nobody commands it and it stays at the room's ambient temperature and
+pressure), with Earth rate, gravity and the local geomagnetic field, on a stage (the stepper
+bench) that can turn it about its z axis. Device simulators only ever call
+:meth:`World.environment`, :meth:`World.unit_temperature_c` and the chamber's methods.
 
 Defaults (``docs/simulation.md``):
 
@@ -24,6 +25,7 @@ import numpy as np
 
 from bench.model.imu_simple import Environment, earth_rate_dps
 from bench.params import dataclass_from_dict
+from bench.sim.chamber import Chamber, ChamberParams
 from bench.sim.stage import RotatingStage
 
 
@@ -34,6 +36,7 @@ class WorldParams:
     ambient_temp_c: float = 20.0
     latitude_deg: float = 36.4
     field_ut: list[float] = field(default_factory=lambda: [23.6, 0.0, -42.0])
+    chamber: ChamberParams = field(default_factory=ChamberParams)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "WorldParams":
@@ -47,6 +50,7 @@ class World:
     def __init__(self, params: WorldParams):
         self.p = params
         self.stage = RotatingStage()
+        self.chamber = Chamber(params.chamber, ambient_temp_c=params.ambient_temp_c)
         self._earth = earth_rate_dps(params.latitude_deg)
         self._field = np.asarray(params.field_ut, dtype=float)
         self._env = Environment(rate_dps=self._earth, specific_force_g=np.array([0.0, 0.0, 1.0]), field_ut=self._field)
@@ -67,8 +71,12 @@ class World:
         return Environment(rate_dps=rate, specific_force_g=self._env.specific_force_g, field_ut=_rotate_z(self._field, c, s))
 
     def unit_temperature_c(self, t_s: np.ndarray) -> np.ndarray:
-        """Temperature of the unit under test (°C) at run times ``t_s`` (s)."""
-        return np.full(np.shape(t_s), self.p.ambient_temp_c, dtype=float)
+        """Temperature of the sensor die (°C) at run times ``t_s`` (s): chamber, mount and self-heating."""
+        return self.chamber.unit_temperature_c(t_s)
+
+    def set_unit_power(self, t_s: float, on: bool) -> None:
+        """The unit's electronics switched on or off at run time ``t_s`` (s): self-heating."""
+        self.chamber.set_unit_power(t_s, on)
 
 
 def _rotate_z(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
