@@ -7,6 +7,7 @@ traceback unless ``--debug``).
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import signal
 import sys
@@ -60,6 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if not args.debug:
+        # drivers turn pymodbus's failures into typed errors; its own log lines would only repeat them
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+        logging.getLogger("can").setLevel(logging.CRITICAL)
     console = Console(stderr=False, highlight=False)
     err = Console(stderr=True, highlight=False)
     try:
@@ -260,10 +265,12 @@ def cmd_sim_serve(args: argparse.Namespace, console: Console) -> int:
         raise InputError(f"no instrument {unknown[0]!r} in {args.config} (has: {', '.join(config.instruments)})", None, "--instrument")
     clock = WallClock()
     try:
-        devices = build_devices(config, clock, names)
+        sims = build_devices(config, clock, names, fixed_ports=True)
     except ValueError as exc:
         raise InputError(str(exc)) from None
-    endpoints = [open_endpoint(n, d) for n, d in devices.items()]
+    except OSError as exc:
+        raise InputError(f"cannot start a simulated server: {exc} (is another 'bench sim serve' running?)", None, "--config") from None
+    endpoints = []
     stop = {"flag": False}
 
     def on_signal(signum: int, _frame) -> None:
@@ -271,14 +278,21 @@ def cmd_sim_serve(args: argparse.Namespace, console: Console) -> int:
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        for ep in endpoints:
-            print(f"{ep.name}: {ep.path}", flush=True)
-        print(f"serving {len(endpoints)} simulated instrument(s) on the wall clock; Ctrl-C to stop (pid {os.getpid()})", file=sys.stderr, flush=True)
+        for name, sim in sims.items():
+            for transport, address in sim.endpoints:
+                print(f"{name}: {transport} {address}", flush=True)
+            for sub, dev in sim.serial.items():
+                ep = open_endpoint(name if not sub else f"{name}.{sub}", dev)
+                endpoints.append(ep)
+                print(f"{ep.name}: serial {ep.path}", flush=True)
+        print(f"serving {len(sims)} simulated instrument(s) on the wall clock; Ctrl-C to stop (pid {os.getpid()})", file=sys.stderr, flush=True)
         serve(endpoints, clock, lambda: stop["flag"])
     finally:
         for s, h in old.items():
             signal.signal(s, h)
         close_endpoints(endpoints)
+        for sim in sims.values():
+            sim.close()
     return EXIT_OK
 
 

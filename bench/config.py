@@ -18,8 +18,12 @@ from drivers.stepper_speed import BenchSpeedCalibration
 
 CONFIG_SCHEMA = "bench-config/1"
 SENSOR_MODEL_SCHEMA = "bench-sensor-model/1"
-DRIVERS = ("acs_board", "stepper_bench", "thermocouple_reader")
-SIM_BACKENDS = ("acs_board", "stepper_bench", "thermocouple_reader")
+DRIVERS = ("acs_board", "stepper_bench", "thermocouple_reader", "tvac", "rate_table")
+SIM_BACKENDS = DRIVERS
+DEFAULT_BAUDRATE = {"tvac": 9600}
+"""Per-driver default baud rate (bit/s) when the config gives none: Watlow F4 and TPG 261 ship at
+9600 (protocols.md sections 1-2); the others default to 115200."""
+DEFAULT_CAN_CHANNEL = "bench-sim"
 
 
 @dataclass
@@ -32,6 +36,12 @@ class SimConfig:
     model_path: str = ""
     speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
     open_channels: list[int] = field(default_factory=list)
+    modbus_port: int = 0
+    """TCP port of the simulated Modbus server on 127.0.0.1 (0: any free port)."""
+    can_channel: str = DEFAULT_CAN_CHANNEL
+    """python-can virtual-bus channel the simulated CAN devices sit on."""
+    node_id: int = 1
+    """CANopen node id of the simulated rate table's rotation axis (tilt: node_id + 1)."""
 
 
 @dataclass
@@ -44,6 +54,11 @@ class InstrumentConfig:
     sim: SimConfig | None = None
     location: Location | None = None
     speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
+    gauge_port: str = ""
+    """tvac: serial URL of the vacuum gauge controller (TPG 261)."""
+    gauge_baudrate: int = 9600
+    safe_set_point_c: float = 20.0
+    """tvac: chamber set point of the safe state (°C)."""
 
 
 @dataclass
@@ -126,7 +141,7 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
     if driver is not None and driver not in DRIVERS:
         errors.append(InputError(f"unknown driver {driver!r} (available: {', '.join(DRIVERS)})", f.map["driver"].location, "driver"))
     port = f.get("port", str, required=True)
-    baud = f.get("baudrate", int, default=115200)
+    baud = f.get("baudrate", int, default=DEFAULT_BAUDRATE.get(driver or "", 115200))
     if baud is not None and not 300 <= baud <= 4_000_000:
         errors.append(InputError("expected a baud rate between 300 and 4000000", f.map["baudrate"].location, "baudrate"))
     timeout = 0.5
@@ -138,10 +153,17 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
     if (n := f.node_at("sim")) is not None:
         sim = _sim(name, n, base, errors)
     cal = _speed_calibration(f.node_at("speed_calibration"), errors)
+    gauge_port = f.get("gauge_port", str, default="")
+    if driver == "tvac" and not gauge_port:
+        errors.append(InputError("a tvac instrument needs 'gauge_port' (serial port of its vacuum gauge controller, e.g. /dev/ttyUSB1)", node.location, "gauge_port"))
+    gauge_baud = f.get("gauge_baudrate", int, default=9600)
+    safe_sp = 20.0
+    if (n := f.node_at("safe_set_point")) is not None:
+        safe_sp = _quantity(n, "degC", "safe_set_point", errors, safe_sp)
     f.check_unknown()
     if len(errors) > before:
         return None
-    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal)
+    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp)
 
 
 def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpeedCalibration:
@@ -174,6 +196,13 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
     else:
         sim.open_channels = opened
     sim.speed_calibration = _speed_calibration(f.node_at("speed_calibration"), errors)
+    sim.modbus_port = f.get("modbus_port", int, default=0)
+    if sim.modbus_port is not None and not 0 <= sim.modbus_port <= 65535:
+        errors.append(InputError("expected a TCP port 0..65535 (0: any free port)", f.map["modbus_port"].location, "modbus_port"))
+    sim.can_channel = f.get("can_channel", str, default=DEFAULT_CAN_CHANNEL)
+    sim.node_id = f.get("node_id", int, default=1)
+    if sim.node_id is not None and not 1 <= sim.node_id <= 126:
+        errors.append(InputError("expected a CANopen node id 1..126 (the tilt axis takes the next one)", f.map["node_id"].location, "node_id"))
     model_rel = f.get("sensor_model", str)
     if model_rel is not None:
         sim.model_path = str(base / model_rel)

@@ -1,25 +1,33 @@
 """The lab a run talks to: a clock and one driver per instrument, on hardware or simulators.
 
-``--sim`` puts the simulators named in the config behind the very same drivers, through the
-``sim://NAME`` pyserial URL handler: the driver code path is identical to a hardware run.
+``--sim`` puts the simulators named in the config behind the very same drivers: serial ones
+through the ``sim://NAME`` pyserial URL handler, the chamber controller through a real Modbus TCP
+server on 127.0.0.1, CAN drives on a python-can virtual bus. The driver code path is identical to
+a hardware run.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 from bench.clock import Clock, VirtualClock, WallClock
-from bench.config import LabConfig
+from bench.config import InstrumentConfig, LabConfig
 from bench.errors import InputError
 from bench.sim import registry
-from bench.sim.factory import build_devices
+from bench.sim.factory import SimInstrument, build_devices, serial_url
 from drivers.acs_board import AcsBoard
 from drivers.stepper_bench import StepperBench
 from drivers.thermocouple_reader import ThermocoupleReader
+from drivers.tvac import TvacChamber
 
-DRIVER_CLASSES = {"acs_board": AcsBoard, "stepper_bench": StepperBench, "thermocouple_reader": ThermocoupleReader}
-"""Config ``driver`` name -> driver class (each has ``open(url, baudrate=, timeout_s=, on_traffic=)``)."""
+DRIVER_CLASSES: dict[str, Any] = {
+    "acs_board": AcsBoard,
+    "stepper_bench": StepperBench,
+    "thermocouple_reader": ThermocoupleReader,
+    "tvac": TvacChamber,
+}
+"""Config ``driver`` name -> driver class (each has ``open(url, baudrate=, timeout_s=, on_traffic=, ...)``)."""
 
 TrafficSink = Callable[[str, str, str, bytes], None]
 """Called with (instrument, "command" | "reply", what (frame or command name), raw bytes)."""
@@ -29,19 +37,30 @@ TrafficSink = Callable[[str, str, str, bytes], None]
 class Lab:
     clock: Clock
     mode: str  # "sim" | "hardware"
-    instruments: dict[str, AcsBoard | StepperBench | ThermocoupleReader]
+    instruments: dict[str, Any]
     ports: dict[str, str]
-    sims: dict[str, object] = field(default_factory=dict)
+    sims: dict[str, SimInstrument] = field(default_factory=dict)
 
     def close(self) -> None:
-        """Close every port and unregister simulators (errors ignored: this runs on the way out)."""
+        """Close every port, stop simulators and unregister them (errors ignored: this runs on the way out)."""
         for drv in self.instruments.values():
             try:
                 drv.close()
             except Exception:  # noqa: BLE001 - closing must not mask the run's outcome
                 pass
-        for name in self.sims:
-            registry.unregister(name)
+        for name, sim in self.sims.items():
+            for sub in sim.serial:
+                registry.unregister(serial_url(name, sub).removeprefix("sim://"))
+            sim.close()
+
+
+def driver_kwargs(inst: InstrumentConfig) -> dict[str, Any]:
+    """Driver-specific keyword arguments of ``open`` from the config (hardware URLs included)."""
+    if inst.driver == "stepper_bench":
+        return {"calibration": inst.speed_calibration}
+    if inst.driver == "tvac":
+        return {"gauge_url": inst.gauge_port, "gauge_baudrate": inst.gauge_baudrate, "safe_set_point_c": inst.safe_set_point_c}
+    return {}
 
 
 def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, on_traffic: TrafficSink | None = None) -> Lab:
@@ -54,18 +73,22 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
         if name not in config.instruments:
             raise InputError(f"instrument {name!r} used by the procedure is not in the config (has: {', '.join(config.instruments)})", None, "instruments")
     clock: Clock = WallClock() if (realtime or not sim) else VirtualClock()
-    sims: dict[str, object] = {}
-    ports: dict[str, str] = {}
+    sims: dict[str, SimInstrument] = {}
     if sim:
         try:
             sims = build_devices(config, clock, names)
         except ValueError as exc:
             raise InputError(str(exc)) from None
-        for name, dev in sims.items():
-            ports[name] = registry.register(name, dev)
-    else:
+    ports: dict[str, str] = {}
+    kwargs: dict[str, dict[str, Any]] = {name: driver_kwargs(config.instruments[name]) for name in names}
+    for name, s in sims.items():
+        for sub, dev in s.serial.items():
+            registry.register(serial_url(name, sub).removeprefix("sim://"), dev)
+        ports[name] = s.url or serial_url(name, "")
+        kwargs[name].update({kw: serial_url(name, sub) for kw, sub in s.url_kwargs.items()})
+    if not sim:
         ports = {name: config.instruments[name].port for name in names}
-    instruments: dict[str, AcsBoard | StepperBench | ThermocoupleReader] = {}
+    instruments: dict[str, Any] = {}
     lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims)
     try:
         for name in names:
@@ -73,9 +96,8 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             hook = None
             if on_traffic is not None:
                 hook = (lambda n: (lambda d, t, raw: on_traffic(n, d, t, raw)))(name)
-            extra = {"calibration": inst.speed_calibration} if inst.driver == "stepper_bench" else {}
             cls = DRIVER_CLASSES[inst.driver]
-            instruments[name] = cls.open(ports[name], baudrate=inst.baudrate, timeout_s=inst.timeout_s, on_traffic=hook, **extra)
+            instruments[name] = cls.open(ports[name], baudrate=inst.baudrate, timeout_s=inst.timeout_s, on_traffic=hook, **kwargs[name])
     except Exception:
         lab.close()
         raise

@@ -54,7 +54,7 @@ def full_dry_run(procedure, config, runs_dir: Path) -> tuple[float, float, int]:
 
 def simulator_alone(config, seconds: float) -> tuple[float, float, int]:
     clock = VirtualClock()
-    dev = build_devices(config, clock, ["acs_board"])["acs_board"]
+    dev = build_devices(config, clock, ["acs_board"])["acs_board"].device
     from drivers import acs_protocol as proto
 
     dev.receive(proto.encode_frame(proto.FrameType.SENSOR_POWER, b"\x01") + proto.encode_frame(proto.FrameType.START_STREAM))

@@ -35,7 +35,7 @@ def sim_board():
 
     config = load_config(SIM_CONFIG)
     clock = VirtualClock()
-    device = build_devices(config, clock, ["acs_board"])["acs_board"]
+    device = build_devices(config, clock, ["acs_board"])["acs_board"].device
     name = f"acs_board_test_{os.getpid()}_{id(device)}"
     url = registry.register(name, device)
     yield device, clock, url

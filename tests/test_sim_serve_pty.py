@@ -21,9 +21,15 @@ def test_driver_in_this_process_talks_to_served_simulator():
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
-        line = server.stdout.readline()
-        name, _, path = line.strip().partition(": ")
-        assert name == "acs_board" and path.startswith("/dev/"), line
+        endpoints = {}
+        while "acs_board" not in endpoints:
+            line = server.stdout.readline()
+            assert line, server.stderr.read()
+            name, _, rest = line.strip().partition(": ")
+            transport, _, address = rest.partition(" ")
+            endpoints[name] = (transport, address)
+        transport, path = endpoints["acs_board"]
+        assert transport == "serial" and path.startswith("/dev/"), endpoints
         board = AcsBoard.open(path, timeout_s=1.0)
         assert board.identify()["model"].startswith("ACS-IMU")
         board.sensor_power(True)

@@ -25,7 +25,7 @@ LAB = ROOT / "configs" / "sim_rotating_bench.yaml"
 def lab():
     config = load_config(LAB)
     clock = VirtualClock()
-    devices = build_devices(config, clock)
+    devices = {n: s.device for n, s in build_devices(config, clock).items()}
     urls = {name: registry.register(f"{name}_t{id(clock)}", dev) for name, dev in devices.items()}
     yield clock, devices, urls
     for name in devices:

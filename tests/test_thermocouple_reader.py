@@ -18,7 +18,7 @@ from tests.conftest import ROOT
 def logger():
     config = load_config(ROOT / "configs" / "sim_rotating_bench.yaml")
     clock = VirtualClock()
-    dev = build_devices(config, clock, ["thermocouples"])["thermocouples"]
+    dev = build_devices(config, clock, ["thermocouples"])["thermocouples"].device
     name = f"tc_{id(dev)}"
     url = registry.register(name, dev)
     yield dev, ThermocoupleReader.open(url)

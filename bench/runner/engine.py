@@ -121,7 +121,7 @@ class Runner:
         """Identify every instrument, declare the streams, start the recorder (SWMR)."""
         for name, drv in self.lab.instruments.items():
             info = drv.identify()
-            info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=str(drv.port.baudrate))
+            info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=str(getattr(getattr(drv, "port", None), "baudrate", "")))
             self.rec.add_instrument(name, {k: str(v) for k, v in info.items()})
             if not drv.streams:
                 continue  # an instrument without a data stream (stepper bench)

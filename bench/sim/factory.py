@@ -1,44 +1,123 @@
-"""Build the device simulators a lab config names, on one world and one clock."""
+"""Build the simulators a lab config names, on one world and one clock.
+
+Each instrument becomes a :class:`SimInstrument`: its serial devices (reached in-process as
+``sim://NAME`` / ``sim://NAME.SUB``, or on pseudo-terminals under ``bench sim serve``), and, for
+instruments whose link is not serial, the URL of the live endpoint (a Modbus TCP server on
+127.0.0.1, a python-can virtual bus channel).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+from typing import Callable
+
 import numpy as np
 
-from bench.config import LabConfig
+from bench.config import InstrumentConfig, LabConfig
 from bench.model.imu_simple import SimpleImuModel
 from bench.sim.acs_board import AcsBoardIdentity, AcsBoardSim
+from bench.sim.registry import SerialDevice
 from bench.sim.stepper_bench import StepperBenchSim
 from bench.sim.thermocouple_reader import ThermocoupleReaderSim
 from bench.sim.world import World
 
+LOCALHOST = "127.0.0.1"
 
-def build_devices(config: LabConfig, clock, names: list[str] | None = None) -> dict[str, object]:
-    """One simulator per instrument (restricted to ``names`` if given), keyed by instrument name,
-    all on one world: the stepper bench turns the stage the sensor board sits on.
 
-    Raises ``ValueError`` naming an instrument that has no ``sim`` section.
+@dataclass
+class SimInstrument:
+    """One simulated instrument, ready for its driver.
+
+    ``serial``: sub-name -> serial device; ``""`` is the instrument's own link, others are
+    auxiliary links (``gauge`` of the chamber, ``slcan`` adapter of a CAN bus). ``url``: the
+    driver's URL when its own link is not serial. ``url_kwargs``: driver keyword -> sub-name of
+    the serial device whose URL it takes. ``endpoints``: (transport, address) lines for people.
+    ``device``: the simulator object with the fault hooks.
     """
-    world = World(config.world)
-    devices: dict[str, AcsBoardSim] = {}
-    for name, inst in config.instruments.items():
-        if names is not None and name not in names:
-            continue
-        if inst.sim is None:
-            raise ValueError(f"instrument {name!r} has no 'sim' section in {config.path}; it cannot be simulated")
-        if inst.sim.backend == "thermocouple_reader":
-            devices[name] = ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate)
-            continue
-        if inst.sim.backend == "stepper_bench":
-            devices[name] = StepperBenchSim(clock, world.stage, inst.sim.speed_calibration, inst.sim.serial, inst.baudrate)
-            continue
-        rng = np.random.default_rng(inst.sim.seed)
-        model = SimpleImuModel(inst.sim.model, rng)
-        devices[name] = AcsBoardSim(
-            clock,
-            world,
-            model,
-            AcsBoardIdentity(serial=inst.sim.serial),
-            baudrate=inst.baudrate,
-            bit_fail_mask=inst.sim.bit_fail_mask,
-        )
-    return devices
+
+    name: str
+    device: object
+    serial: dict[str, SerialDevice] = field(default_factory=dict)
+    url: str | None = None
+    url_kwargs: dict[str, str] = field(default_factory=dict)
+    endpoints: list[tuple[str, str]] = field(default_factory=list)
+    closers: list[Callable[[], None]] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Stop servers and buses (errors ignored: this runs on the way out)."""
+        for close in reversed(self.closers):
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - closing must not mask the run's outcome
+                pass
+        self.closers.clear()
+
+
+def serial_url(name: str, sub: str) -> str:
+    """In-process URL of serial device ``sub`` of instrument ``name``."""
+    return f"sim://{name}" if not sub else f"sim://{name}.{sub}"
+
+
+def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, world: World | None = None,
+                  fixed_ports: bool = False) -> dict[str, SimInstrument]:
+    """One simulator per instrument (restricted to ``names`` if given), keyed by instrument name,
+    all on one world: the stepper bench and the rate table turn the unit, the chamber heats it.
+
+    ``fixed_ports``: bind network servers to the ports the config gives (``bench sim serve``);
+    otherwise any free port, so parallel dry-runs never collide. Raises ``ValueError`` naming an
+    instrument that has no ``sim`` section.
+    """
+    world = world or World(config.world)
+    out: dict[str, SimInstrument] = {}
+    try:
+        for name, inst in config.instruments.items():
+            if names is not None and name not in names:
+                continue
+            if inst.sim is None:
+                raise ValueError(f"instrument {name!r} has no 'sim' section in {config.path}; it cannot be simulated")
+            out[name] = _BUILDERS[inst.sim.backend](name, inst, clock, world, fixed_ports)
+    except BaseException:
+        for sim in out.values():
+            sim.close()
+        raise
+    return out
+
+
+def _serial_only(name: str, device) -> SimInstrument:
+    return SimInstrument(name, device, serial={"": device})
+
+
+def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+    rng = np.random.default_rng(inst.sim.seed)
+    model = SimpleImuModel(inst.sim.model, rng)
+    dev = AcsBoardSim(clock, world, model, AcsBoardIdentity(serial=inst.sim.serial), baudrate=inst.baudrate,
+                      bit_fail_mask=inst.sim.bit_fail_mask)
+    return _serial_only(name, dev)
+
+
+def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+    return _serial_only(name, StepperBenchSim(clock, world.stage, inst.sim.speed_calibration, inst.sim.serial, inst.baudrate))
+
+
+def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+    return _serial_only(name, ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate))
+
+
+def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+    from bench.sim.tpg261 import Tpg261Sim
+    from bench.sim.watlow_f4_server import WatlowF4Server
+
+    server = WatlowF4Server(clock, world.chamber)
+    port = server.start(LOCALHOST, inst.sim.modbus_port if fixed_ports else 0)
+    gauge = Tpg261Sim(clock, world.chamber, baudrate=inst.gauge_baudrate)
+    url = f"modbus-tcp://{LOCALHOST}:{port}"
+    return SimInstrument(name, server, serial={"gauge": gauge}, url=url, url_kwargs={"gauge_url": "gauge"},
+                         endpoints=[("modbus-tcp", f"{LOCALHOST}:{port} (unit id 1)")], closers=[server.stop])
+
+
+_BUILDERS = {
+    "acs_board": _acs_board,
+    "stepper_bench": _stepper_bench,
+    "thermocouple_reader": _thermocouple_reader,
+    "tvac": _tvac,
+}

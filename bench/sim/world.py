@@ -27,6 +27,7 @@ from bench.model.imu_simple import Environment, earth_rate_dps
 from bench.params import dataclass_from_dict
 from bench.sim.chamber import Chamber, ChamberParams
 from bench.sim.stage import RotatingStage
+from bench.sim.table_motion import TableMotion
 
 
 @dataclass
@@ -50,6 +51,7 @@ class World:
     def __init__(self, params: WorldParams):
         self.p = params
         self.stage = RotatingStage()
+        self.table = TableMotion()
         self.chamber = Chamber(params.chamber, ambient_temp_c=params.ambient_temp_c)
         self._earth = earth_rate_dps(params.latitude_deg)
         self._field = np.asarray(params.field_ut, dtype=float)
@@ -58,17 +60,34 @@ class World:
     def environment(self, t_s: np.ndarray) -> Environment:
         """Rate, specific force and field seen by the unit at run times ``t_s`` (s).
 
-        Stationary: (3,) vectors. Once the stage has turned: (n, 3) arrays, with Earth rate and
-        field rotated into the turned sensor frame and the stage rate added on z.
+        Stationary: (3,) vectors. Once the stage or the rate table has moved: (n, 3) arrays. The
+        unit sits on the table's platter (and, when a stepper bench is configured, on its stage,
+        about the same z axis): its frame is the world frame turned by the tilt φ about the west
+        (y) axis — φ > 0 tips the platter normal from up toward north — then by the platter and
+        stage angles θ about the platter normal. Earth rate, gravity and field are expressed in
+        that frame; the platter, stage and tilt rates are added (NPSAT1 Appendix L: with
+        φ = −latitude the table axis is perpendicular to Earth's axis and sees no Earth rate).
         """
-        if not self.stage.ever_moved:
+        if not self.stage.ever_moved and not self.table.ever_moved:
             return self._env
-        t = np.asarray(t_s, dtype=float)
-        theta = np.radians(self.stage.angle_deg(t))
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        theta = np.radians(self.stage.angle_deg(t) + self.table.rotation.angle_deg(t))
+        phi = np.radians(self.table.tilt.angle_deg(t))
         c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-        rate = _rotate_z(self._earth, c, s)
-        rate[:, 2] += self.stage.rate_dps(t)
-        return Environment(rate_dps=rate, specific_force_g=self._env.specific_force_g, field_ut=_rotate_z(self._field, c, s))
+        cp, sp = np.cos(phi)[:, None], np.sin(phi)[:, None]
+
+        def to_sensor(v: np.ndarray) -> np.ndarray:
+            # undo the tilt (Ry(φ)ᵀ), then the rotation about the platter normal (Rz(θ)ᵀ)
+            v = np.broadcast_to(v, (t.shape[0], 3))
+            x = cp[:, 0] * v[:, 0] - sp[:, 0] * v[:, 2]
+            z = sp[:, 0] * v[:, 0] + cp[:, 0] * v[:, 2]
+            return _rotate_z_rows(np.stack([x, v[:, 1], z], axis=1), c, s)
+
+        tilt_rate = np.zeros((t.shape[0], 3))
+        tilt_rate[:, 1] = self.table.tilt.rate_dps(t)
+        rate = to_sensor(self._earth) + _rotate_z_rows(tilt_rate, c, s)
+        rate[:, 2] += self.stage.rate_dps(t) + self.table.rotation.rate_dps(t)
+        return Environment(rate_dps=rate, specific_force_g=to_sensor(self._env.specific_force_g), field_ut=to_sensor(self._field))
 
     def unit_temperature_c(self, t_s: np.ndarray) -> np.ndarray:
         """Temperature of the sensor die (°C) at run times ``t_s`` (s): chamber, mount and self-heating."""
@@ -79,10 +98,10 @@ class World:
         self.chamber.set_unit_power(t_s, on)
 
 
-def _rotate_z(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """World vector ``v`` (3,) expressed in a sensor frame turned by angle θ about z (cos c, sin s)."""
-    out = np.empty((c.shape[0], 3))
-    out[:, 0] = c[:, 0] * v[0] + s[:, 0] * v[1]
-    out[:, 1] = -s[:, 0] * v[0] + c[:, 0] * v[1]
-    out[:, 2] = v[2]
+def _rotate_z_rows(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` (n, 3) expressed in a frame turned by angle θ about z (cos c, sin s, (n, 1))."""
+    out = np.empty_like(v)
+    out[:, 0] = c[:, 0] * v[:, 0] + s[:, 0] * v[:, 1]
+    out[:, 1] = -s[:, 0] * v[:, 0] + c[:, 0] * v[:, 1]
+    out[:, 2] = v[:, 2]
     return out
