@@ -50,6 +50,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--resolution", default="0.01 s", help="stopwatch resolution (default '0.01 s', ESTCube-2 section 3.2.2)")
     c.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
 
+    ic = sub.add_parser("instruments", help="instrument housekeeping")
+    icsub = ic.add_subparsers(dest="instruments_command", metavar="ACTION", parser_class=_Parser, required=True)
+    chk = icsub.add_parser("check", help="identify every instrument of a config and read one value from each")
+    chk.add_argument("--config", type=Path, required=True, help="lab config YAML file")
+    chk.add_argument("--sim", action="store_true", help="check the simulators behind the drivers (implied by 'mode: sim' in the config)")
+
     s = sub.add_parser("sim", help="simulated instruments")
     ssub = s.add_subparsers(dest="sim_command", metavar="SIMCOMMAND", parser_class=_Parser)
     sv = ssub.add_parser("serve", help="serve the config's simulated serial instruments on pseudo-terminals")
@@ -74,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_inspect(args, console)
         if args.command == "calibrate-bench":
             return cmd_calibrate_bench(args, console)
+        if args.command == "instruments":
+            return cmd_instruments_check(args, console)
         if args.command == "sim" and args.sim_command == "serve":
             return cmd_sim_serve(args, console)
         parser.print_help()
@@ -114,10 +122,11 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     from bench.runner import Runner
     from bench.runner.progress import RichProgress
 
-    if args.realtime and not args.sim:
-        raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
     procedure = load_procedure(args.procedure)
     config = load_config(args.config)
+    args.sim = args.sim or config.mode == "sim"
+    if args.realtime and not args.sim:
+        raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
     missing = [n for n in procedure.instruments if n not in config.instruments]
     if missing:
         raise InputErrors([
@@ -248,6 +257,27 @@ def cmd_calibrate_bench(args: argparse.Namespace, console: Console) -> int:
     console.print(f"u_A = {fit.u_a_s:.3f} s, u_B = {fit.u_b_stopwatch_s:.4f} s, u_C = {fit.u_c_s:.3f} s")
     console.print(f"speed uncertainty {fit.u_speed_dps:.4f} deg/s (extended, k = {fit.coverage_factor:.3f}: {fit.u_speed_extended_dps:.3f} deg/s); "
                   f"n uncertainty {fit.u_n:.2f} (extended {fit.u_n_extended:.2f})")
+    return EXIT_OK
+
+
+def cmd_instruments_check(args: argparse.Namespace, console: Console) -> int:
+    from bench.config import load_config
+    from bench.instruments_check import check_instruments
+
+    config = load_config(args.config)
+    sim = args.sim or config.mode == "sim"
+    rows = check_instruments(config, sim=sim)
+    table = Table(title=f"{config.name} ({'simulated' if sim else 'hardware'})")
+    for col in ("instrument", "transport", "endpoint", "identity", "reading", "status"):
+        table.add_column(col, overflow="fold")
+    for r in rows:
+        table.add_row(r.instrument, r.transport, r.endpoint, r.identity, r.reading, r.status if r.ok else f"[red]{r.status}[/red]")
+    console.print(table)
+    bad = [r.instrument for r in rows if not r.ok]
+    if bad:
+        console.print(f"{len(bad)} of {len(rows)} instrument(s) not responding: {', '.join(bad)}")
+        return EXIT_FAILED
+    console.print(f"all {len(rows)} instrument(s) identified and responding")
     return EXIT_OK
 
 

@@ -69,6 +69,8 @@ class LabConfig:
     world: WorldParams
     instruments: dict[str, InstrumentConfig]
     flush_interval_s: float = 1.0
+    mode: str = "hardware"
+    """``sim``: the config describes a simulated lab; commands use its simulators without ``--sim``."""
 
 
 def load_config(path: str | Path) -> LabConfig:
@@ -80,6 +82,9 @@ def load_config(path: str | Path) -> LabConfig:
     if schema is not None and schema != CONFIG_SCHEMA:
         errors.append(InputError(f"unsupported schema {schema!r}; expected {CONFIG_SCHEMA!r}", top.map["schema"].location, "schema"))
     name = top.get("name", str, default=src.path.stem)
+    mode = top.get("mode", str, default="hardware")
+    if mode not in ("hardware", "sim"):
+        errors.append(InputError(f"expected 'hardware' or 'sim', got {mode!r}", top.map["mode"].location, "mode"))
     world = _world(top.node_at("world"), errors)
     instruments: dict[str, InstrumentConfig] = {}
     inode = top.node_at("instruments")
@@ -103,7 +108,7 @@ def load_config(path: str | Path) -> LabConfig:
     top.check_unknown()
     if errors:
         raise InputErrors(errors)
-    return LabConfig(name, src.path, src.text, world, instruments, flush)
+    return LabConfig(name, src.path, src.text, world, instruments, flush, mode)
 
 
 def _quantity(node: Node, units: str, fname: str, errors: list[InputError], default: float) -> float:

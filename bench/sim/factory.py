@@ -17,6 +17,7 @@ from bench.config import InstrumentConfig, LabConfig
 from bench.model.imu_simple import SimpleImuModel
 from bench.sim.acs_board import AcsBoardIdentity, AcsBoardSim
 from bench.sim.registry import SerialDevice
+from bench.sim.serial_faults import FaultySerialLink
 from bench.sim.stepper_bench import StepperBenchSim
 from bench.sim.thermocouple_reader import ThermocoupleReaderSim
 from bench.sim.world import World
@@ -28,8 +29,9 @@ LOCALHOST = "127.0.0.1"
 class SimInstrument:
     """One simulated instrument, ready for its driver.
 
-    ``serial``: sub-name -> serial device; ``""`` is the instrument's own link, others are
-    auxiliary links (``gauge`` of the chamber, ``slcan`` adapter of a CAN bus). ``url``: the
+    ``serial``: sub-name -> serial link (a :class:`FaultySerialLink` around the device: fault
+    hooks on the bytes); ``""`` is the instrument's own link, others are auxiliary links
+    (``gauge`` of the chamber, ``slcan`` adapter of a CAN bus). ``url``: the
     driver's URL when its own link is not serial. ``url_kwargs``: driver keyword -> sub-name of
     the serial device whose URL it takes. ``endpoints``: (transport, address) lines for people.
     ``device``: the simulator object with the fault hooks.
@@ -83,8 +85,8 @@ def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, w
     return out
 
 
-def _serial_only(name: str, device) -> SimInstrument:
-    return SimInstrument(name, device, serial={"": device})
+def _serial_only(name: str, device, seed: int = 0) -> SimInstrument:
+    return SimInstrument(name, device, serial={"": FaultySerialLink(device, seed)})
 
 
 def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
@@ -92,7 +94,7 @@ def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_por
     model = SimpleImuModel(inst.sim.model, rng)
     dev = AcsBoardSim(clock, world, model, AcsBoardIdentity(serial=inst.sim.serial), baudrate=inst.baudrate,
                       bit_fail_mask=inst.sim.bit_fail_mask)
-    return _serial_only(name, dev)
+    return _serial_only(name, dev, inst.sim.seed)
 
 
 def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
@@ -111,7 +113,7 @@ def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: b
     port = server.start(LOCALHOST, inst.sim.modbus_port if fixed_ports else 0)
     gauge = Tpg261Sim(clock, world.chamber, baudrate=inst.gauge_baudrate)
     url = f"modbus-tcp://{LOCALHOST}:{port}"
-    return SimInstrument(name, server, serial={"gauge": gauge}, url=url, url_kwargs={"gauge_url": "gauge"},
+    return SimInstrument(name, server, serial={"gauge": FaultySerialLink(gauge, inst.sim.seed)}, url=url, url_kwargs={"gauge_url": "gauge"},
                          endpoints=[("modbus-tcp", f"{LOCALHOST}:{port} (unit id 1)")], closers=[server.stop])
 
 

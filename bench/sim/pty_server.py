@@ -13,6 +13,8 @@ import termios
 import tty
 from dataclasses import dataclass
 
+from serial import SerialException
+
 from bench.clock import WallClock
 from bench.sim.registry import SerialDevice
 
@@ -49,10 +51,16 @@ def serve(endpoints: list[PtyEndpoint], clock: WallClock, should_stop) -> None:
             except OSError:
                 data = b""
             if data:
-                by_fd[fd].device.receive(data)
+                try:
+                    by_fd[fd].device.receive(data)
+                except SerialException:
+                    pass  # simulated cable fault: the bytes are lost
         now = clock.now()
         for ep in endpoints:
-            out = ep.device.take_output(now)
+            try:
+                out = ep.device.take_output(now)
+            except SerialException:
+                continue
             while out:
                 try:
                     n = os.write(ep.master, out)
