@@ -48,6 +48,31 @@ def ensure_env() -> None:
     STAMP.write_text(want + "\n")
 
 
+TEST_TOOLS = {"mbpoll": "mbpoll"}
+"""Debian packages of third-party protocol clients the tests use when present (command -> package)."""
+
+
+def ensure_test_tools() -> None:
+    """Install missing protocol clients with apt-get where allowed (root on Debian); the tests that
+    need one skip with the reason printed otherwise."""
+    import shutil
+
+    missing = [pkg for cmd, pkg in TEST_TOOLS.items() if shutil.which(cmd) is None]
+    if not missing or shutil.which("apt-get") is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
+        return
+    _say(f"installing {', '.join(missing)} with apt-get (third-party protocol clients for the tests)")
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    try:
+        ok = subprocess.run(["apt-get", "install", "-y", "-q", *missing], env=env, capture_output=True, timeout=300).returncode == 0
+        if not ok:
+            subprocess.run(["apt-get", "update", "-q"], env=env, capture_output=True, timeout=300)
+            ok = subprocess.run(["apt-get", "install", "-y", "-q", *missing], env=env, capture_output=True, timeout=300).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        ok = False
+    if not ok:
+        _say(f"could not install {', '.join(missing)}; the tests that need it will say so")
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("dryrun", "test"):
         print(__doc__)
@@ -57,6 +82,7 @@ def main(argv: list[str]) -> int:
     if argv[0] == "dryrun":
         cmd = [str(PY), "-m", "bench", *DRYRUN, *argv[1:]]
     else:
+        ensure_test_tools()
         cmd = [str(PY), "-m", "pytest", *argv[1:]]
     _say(" ".join(cmd[2:] if argv[0] == "dryrun" else cmd[1:]))
     return subprocess.run(cmd).returncode

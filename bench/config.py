@@ -59,6 +59,11 @@ class InstrumentConfig:
     gauge_baudrate: int = 9600
     safe_set_point_c: float = 20.0
     """tvac: chamber set point of the safe state (°C)."""
+    channels: list[int] = field(default_factory=lambda: [101, 102, 103, 104])
+    """thermocouple_reader: channels scanned during a run."""
+    tc_type: str = "K"
+    poll_interval_s: float = 1.0
+    """Run time between two readings of a polled (non-streaming) instrument (s)."""
 
 
 @dataclass
@@ -165,10 +170,22 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
     safe_sp = 20.0
     if (n := f.node_at("safe_set_point")) is not None:
         safe_sp = _quantity(n, "degC", "safe_set_point", errors, safe_sp)
+    channels = f.get("channels", list, default=[101, 102, 103, 104])
+    if not channels or not all(isinstance(c, int) and not isinstance(c, bool) and 101 <= c <= 399 for c in channels):
+        errors.append(InputError("expected a list of channel numbers such as [101, 102] (slot 1-3, channel 01-99)", (f.map.get("channels") or node).location, "channels"))
+    tc_type = f.get("tc_type", str, default="K")
+    if tc_type not in ("K", "T"):
+        errors.append(InputError(f"expected thermocouple type K or T, got {tc_type!r}", f.map["tc_type"].location, "tc_type"))
+    poll = 1.0
+    if (n := f.node_at("poll_interval")) is not None:
+        poll = _quantity(n, "s", "poll_interval", errors, poll)
+        if not 0.05 <= poll <= 3600:
+            errors.append(InputError("expected a poll interval between 50 ms and 1 h", n.location, "poll_interval"))
     f.check_unknown()
     if len(errors) > before:
         return None
-    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp)
+    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
+                            channels, tc_type, poll)
 
 
 def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpeedCalibration:

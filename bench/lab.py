@@ -17,6 +17,7 @@ from bench.errors import InputError
 from bench.sim import registry
 from bench.sim.factory import SimInstrument, build_devices, serial_url
 from drivers.acs_board import AcsBoard
+from drivers.rate_table import RateTable
 from drivers.stepper_bench import StepperBench
 from drivers.thermocouple_reader import ThermocoupleReader
 from drivers.tvac import TvacChamber
@@ -26,6 +27,7 @@ DRIVER_CLASSES: dict[str, Any] = {
     "stepper_bench": StepperBench,
     "thermocouple_reader": ThermocoupleReader,
     "tvac": TvacChamber,
+    "rate_table": RateTable,
 }
 """Config ``driver`` name -> driver class (each has ``open(url, baudrate=, timeout_s=, on_traffic=, ...)``)."""
 
@@ -40,6 +42,8 @@ class Lab:
     instruments: dict[str, Any]
     ports: dict[str, str]
     sims: dict[str, SimInstrument] = field(default_factory=dict)
+    poll_intervals: dict[str, float] = field(default_factory=dict)
+    """Run time between readings of each polled instrument (s), from the config."""
 
     def close(self) -> None:
         """Close every port, stop simulators and unregister them (errors ignored: this runs on the way out)."""
@@ -60,6 +64,8 @@ def driver_kwargs(inst: InstrumentConfig) -> dict[str, Any]:
         return {"calibration": inst.speed_calibration}
     if inst.driver == "tvac":
         return {"gauge_url": inst.gauge_port, "gauge_baudrate": inst.gauge_baudrate, "safe_set_point_c": inst.safe_set_point_c}
+    if inst.driver == "thermocouple_reader":
+        return {"monitor_channels": inst.channels, "tc_type": inst.tc_type}
     return {}
 
 
@@ -81,6 +87,9 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             raise InputError(str(exc)) from None
     ports: dict[str, str] = {}
     kwargs: dict[str, dict[str, Any]] = {name: driver_kwargs(config.instruments[name]) for name in names}
+    for name in names:
+        if config.instruments[name].driver == "rate_table":
+            kwargs[name]["clock"] = clock  # motion waits run on the lab's clock (virtual in a dry-run)
     for name, s in sims.items():
         for sub, dev in s.serial.items():
             registry.register(serial_url(name, sub).removeprefix("sim://"), dev)
@@ -89,7 +98,8 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
     if not sim:
         ports = {name: config.instruments[name].port for name in names}
     instruments: dict[str, Any] = {}
-    lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims)
+    lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims,
+              {name: config.instruments[name].poll_interval_s for name in names})
     try:
         for name in names:
             inst = config.instruments[name]

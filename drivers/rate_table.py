@@ -301,6 +301,15 @@ class RateTable:
             raise first
 
     # ---- status -----------------------------------------------------------------------------
+    def monitor_columns(self) -> list[tuple[str, str]]:
+        return [("angle", "deg"), ("rate", "deg/s"), ("tilt", "deg"), ("statusword", "1"), ("tilt_statusword", "1")]
+
+    def monitor(self) -> dict[str, float]:
+        """Angle (deg), rate (deg/s), tilt (deg) and both status words, logged every poll interval."""
+        r = self.read()
+        return {"angle": r["angle_deg"], "rate": r["rate_dps"], "tilt": r["tilt_deg"],
+                "statusword": float(r["statusword"]), "tilt_statusword": float(r["tilt_statusword"])}
+
     def read(self) -> dict:
         """Angles (deg), rates (deg/s), CiA 402 states and decoded statusword bits of both axes.
 

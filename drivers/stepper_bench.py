@@ -88,6 +88,14 @@ class StepperBench:
                 return {"state": m["state"], "n": int(m["n"]), "angle_deg": float(m["pos"])}
         raise ProtocolError(f"stepper_bench: no status report in {lines!r}")
 
+    def monitor_columns(self) -> list[tuple[str, str]]:
+        return [("angle", "deg"), ("n", "1")]
+
+    def monitor(self) -> dict[str, float]:
+        """Angle (deg) and speed parameter n of the bench, logged every poll interval."""
+        s = self.status()
+        return {"angle": s["angle_deg"], "n": float(s["n"])}
+
     def safe_state(self) -> None:
         """Stop turning: realtime hold first (acts at once), then a confirmed ``$STOP``."""
         self.channel.send_realtime(b"!")

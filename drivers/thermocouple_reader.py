@@ -17,6 +17,7 @@ from drivers.transport import LineChannel, open_serial
 
 OPEN_TC_THRESHOLD = 9.0e37  # the 34970A's overload reading is +9.9E+37
 TC_TYPES = ("K", "T")
+DEFAULT_CHANNELS = (101, 102, 103, 104)  # the first four channels of a 34901A multiplexer
 
 
 @dataclass
@@ -31,10 +32,13 @@ class ThermocoupleReader:
     kind = "thermocouple_reader"
     streams = False
 
-    def __init__(self, port: serial.SerialBase, *, timeout_s: float = 1.0, on_traffic=None):
+    def __init__(self, port: serial.SerialBase, *, timeout_s: float = 1.0, on_traffic=None,
+                 monitor_channels: list[int] | None = None, tc_type: str = "K"):
         self.port = port
         self.channel = LineChannel(port, timeout_s, "thermocouples", on_traffic)
         self.channels: list[int] = []
+        self.monitor_channels = list(monitor_channels or DEFAULT_CHANNELS)
+        self.tc_type = tc_type
 
     @classmethod
     def open(cls, url: str, *, baudrate: int = 57600, timeout_s: float = 1.0, **kwargs) -> "ThermocoupleReader":
@@ -93,6 +97,17 @@ class ThermocoupleReader:
             else:
                 scan.temps_c[ch] = v
         return scan
+
+    def monitor_columns(self) -> list[tuple[str, str]]:
+        """Configure the monitored channels (if not configured yet) and name one column per channel."""
+        if not self.channels:
+            self.configure(self.monitor_channels, self.tc_type)
+        return [(f"ch{c}", "degC") for c in self.channels]
+
+    def monitor(self) -> dict[str, float]:
+        """One scan, °C per channel column; an open thermocouple reads NaN."""
+        scan = self.read()
+        return {f"ch{c}": (math.nan if v is None else v) for c, v in scan.temps_c.items()}
 
     def reference_junction_c(self, channel: int) -> float:
         """Reference (cold) junction temperature in °C used for ``channel``."""

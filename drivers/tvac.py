@@ -76,6 +76,17 @@ class TvacChamber:
             "alarms": c.read_alarms(),
         }
 
+    MONITOR_COLUMNS = (("air_temp", "degC"), ("mount_temp", "degC"), ("pressure", "Torr"))
+
+    def monitor_columns(self) -> list[tuple[str, str]]:
+        """Columns of :meth:`monitor` (name, units), for the run file's ``tvac/monitor`` stream."""
+        return list(self.MONITOR_COLUMNS)
+
+    def monitor(self) -> dict[str, float]:
+        """The readings a run logs every poll interval: air and mount temperature (°C), pressure (Torr)."""
+        c = self.controller
+        return {"air_temp": c.read_air_temp_c(), "mount_temp": c.read_mount_temp_c(), "pressure": self.gauge.read_pressure_torr()}
+
     def set_point(self, temp_c: float, ramp_c_per_min: float | None = None) -> None:
         """New set point (°C); with ``ramp_c_per_min`` the ramp rate is written first (0 = step)."""
         if ramp_c_per_min is not None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -45,6 +46,67 @@ def test_driver_in_this_process_talks_to_served_simulator():
         board.close()
         assert 120 <= frames <= 260  # 200 Hz for about a second, over a real tty
         assert board.decoder.crc_errors == 0 and board.decoder.dropped_frames == 0
+    finally:
+        server.send_signal(signal.SIGTERM)
+        try:
+            server.wait(timeout=10)
+        finally:
+            if server.poll() is None:
+                server.kill()
+    assert server.returncode == 0, server.stderr.read()
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_serve_starts_all_five_and_foreign_clients_reach_them(tmp_path):
+    """The done-criterion of the instruments issue: all five served, endpoints printed, the
+    chamber's PV read by mbpoll, the rate table reached by python-can's own slcan interface."""
+    import shutil
+
+    port = _free_port()
+    text = SIM_CONFIG.read_text().replace("modbus_port: 5020", f"modbus_port: {port}")
+    text = text.replace("sensor_model: sensors/", f"sensor_model: {SIM_CONFIG.parent}/sensors/")
+    cfg = tmp_path / "sim.yaml"
+    cfg.write_text(text)
+    server = subprocess.Popen([sys.executable, "-m", "bench", "sim", "serve", "--config", str(cfg)],
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        endpoints: dict[str, tuple[str, str]] = {}
+        while "rate_table.slcan" not in endpoints:
+            line = server.stdout.readline()
+            assert line, server.stderr.read()
+            name, _, rest = line.strip().partition(": ")
+            transport, _, address = rest.partition(" ")
+            endpoints[name] = (transport, address)
+        for name in ("acs_board", "stepper_bench", "thermocouples", "tvac.gauge", "rate_table.slcan"):
+            assert endpoints[name][0] == "serial" and endpoints[name][1].startswith("/dev/"), endpoints
+        assert endpoints["tvac"] == ("modbus-tcp", f"127.0.0.1:{port} (unit id 1)")
+        assert endpoints["rate_table"][0] == "can"
+
+        # the rate table from another process, through python-can's slcan interface on the pty
+        probe = (
+            "import can, canopen, sys\n"
+            "net = canopen.Network(); net.connect(interface='slcan', channel=sys.argv[1], bitrate=500000, sleep_after_open=0)\n"
+            "node = canopen.RemoteNode(1, canopen.ObjectDictionary()); net.add_node(node)\n"
+            "print(node.sdo.upload(0x1008, 0).decode()); net.disconnect()\n"  # device name, CiA 301
+        )
+        out = subprocess.run([sys.executable, "-c", probe, endpoints["rate_table.slcan"][1]], capture_output=True, text=True, timeout=30)
+        assert out.returncode == 0, out.stderr
+        assert "TRT-7" in out.stdout
+
+        mbpoll = shutil.which("mbpoll")
+        if mbpoll is None:
+            pytest.skip("mbpoll not on PATH (python3 dev.py test installs it with apt-get where allowed): foreign Modbus client not run")
+        res = subprocess.run([mbpoll, "-m", "tcp", "-p", str(port), "-a", "1", "-0", "-r", "100", "-c", "1", "-1", "127.0.0.1"],
+                             capture_output=True, text=True, timeout=20)
+        assert res.returncode == 0, res.stdout + res.stderr
+        assert re.search(r"\[100\]:\s+200\b", res.stdout), res.stdout  # 20.0 degC in tenths of a degree
     finally:
         server.send_signal(signal.SIGTERM)
         try:

@@ -97,6 +97,9 @@ class Runner:
         self._time_offset: dict[str, float | None] = {}
         self._last_gyro: dict[str, np.ndarray] = {}
         self._last_temp = float("nan")
+        self.monitor_keys: dict[str, str] = {}
+        self._monitor_due: dict[str, float] = {}
+        self._last_monitor: dict[str, dict[str, float]] = {}
         self.handlers: dict[str, Callable[[Step], tuple[str, str]]] = {
             "comment": self._comment,
             "power": self._power,
@@ -124,7 +127,12 @@ class Runner:
             info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=str(getattr(getattr(drv, "port", None), "baudrate", "")))
             self.rec.add_instrument(name, {k: str(v) for k, v in info.items()})
             if not drv.streams:
-                continue  # an instrument without a data stream (stepper bench)
+                if hasattr(drv, "monitor_columns"):
+                    interval = self.lab.poll_intervals.get(name, 1.0)
+                    cols = [Column(c, u, "f8") for c, u in drv.monitor_columns()]
+                    self.monitor_keys[name] = self.rec.add_stream(name, cols, "monitor", rate_hz=1.0 / interval)
+                    self._monitor_due[name] = 0.0
+                continue  # an instrument without a data stream: polled, its commands recorded
             self.stream_keys[name] = self.rec.add_stream(name, ACS_COLUMNS)
             self.stream_stats[name] = {"frames": 0, "crc_errors": 0, "dropped_frames": 0, "garbage_bytes": 0}
             self._time_offset[name] = None
@@ -279,22 +287,41 @@ class Runner:
         return "done", f"{rows} rows in window {window!r}"
 
     def _sleep_checked(self, t_end: float, streams: list[str]) -> None:
-        """Wait until run time ``t_end`` (s), draining ``streams``, flushing, checking for aborts."""
+        """Wait until run time ``t_end`` (s), draining ``streams``, reading the polled instruments
+        when due, flushing, checking for aborts."""
         period = POLL_PERIOD_VIRTUAL_S if self.clock.virtual else POLL_PERIOD_WALL_S
+        next_drain = min(self.clock.now() + period, t_end)
         while True:
             self._check_abort()
             now = self.clock.now()
             if now >= t_end:
                 break
-            self.clock.sleep_until(min(now + period, t_end))
+            wake = min([next_drain, *self._monitor_due.values()])
+            self.clock.sleep_until(max(wake, now))
+            t = self.clock.now()
+            self._poll_monitors(t)
+            if t + 1e-9 < next_drain:
+                continue  # woken for a polled instrument only
+            next_drain = min(t + period, t_end)
             for name in streams:
                 self._drain(name)
             t = self.clock.now()
             self.rec.tick(t)
             self.progress.advance(t, self._readings(streams))
 
+    def _poll_monitors(self, t: float) -> None:
+        """Read every polled instrument whose interval has come and append one row for it."""
+        for name, due in self._monitor_due.items():
+            if t + 1e-9 < due:
+                continue
+            values = self.lab.instruments[name].monitor()
+            self.rec.append(self.monitor_keys[name], np.array([t]), **{k: np.array([v], dtype=float) for k, v in values.items()})
+            self._last_monitor[name] = values
+            interval = self.lab.poll_intervals.get(name, 1.0)
+            self._monitor_due[name] = due + interval if due + interval > t else t + interval
+
     def _readings(self, streams: list[str]) -> str:
-        parts = []
+        parts = [f"{name} " + ", ".join(f"{k} {v:.4g}" for k, v in vals.items()) for name, vals in self._last_monitor.items()]
         for name in streams:
             g = self._last_gyro.get(name)
             if g is not None:

@@ -117,9 +117,29 @@ def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: b
                          endpoints=[("modbus-tcp", f"{LOCALHOST}:{port} (unit id 1)")], closers=[server.stop])
 
 
+def _rate_table(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+    from bench.sim.rate_table import RateTableSim
+
+    node = inst.sim.node_id
+    # in-process labs get a channel of their own, so parallel dry-runs never share a bus
+    channel = inst.sim.can_channel if fixed_ports else f"{inst.sim.can_channel}-{name}-{id(world):x}"
+    sim = RateTableSim(clock, world.table.rotation, world.table.tilt, node_id=node, serial=inst.sim.serial, bus=channel)
+    out = SimInstrument(name, sim, url=f"can://virtual/{channel}?node={node}", closers=[sim.close],
+                        endpoints=[("can", f"python-can virtual channel {channel!r} (this process), nodes {node} rotation, {node + 1} tilt")])
+    if fixed_ports:
+        # other processes reach the bus through a simulated SLCAN USB-CAN adapter on a pseudo-terminal
+        from bench.sim.slcan_gateway import SlcanGatewaySim
+
+        gateway = SlcanGatewaySim(channel)
+        out.serial["slcan"] = FaultySerialLink(gateway, inst.sim.seed)
+        out.closers.insert(0, gateway.close)
+    return out
+
+
 _BUILDERS = {
     "acs_board": _acs_board,
     "stepper_bench": _stepper_bench,
     "thermocouple_reader": _thermocouple_reader,
     "tvac": _tvac,
+    "rate_table": _rate_table,
 }

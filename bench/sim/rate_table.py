@@ -219,13 +219,13 @@ class AxisDrive:
                 self._operation_bits(now, cw, prev)
 
     def _operation_bits(self, now: float, cw: int, prev: int) -> None:
-        halt = bool(cw & Cw.HALT)
-        if halt and not self.halted:
+        halt, was_halted = bool(cw & Cw.HALT), self.halted
+        self.halted = halt
+        if halt and not was_halted:
             self._halt_motion(now, self.value(Obj.PROFILE_DECEL))
             self.move_pending = False
-        elif not halt and self.halted and self.mode == MODE_PROFILE_VELOCITY:
+        elif not halt and was_halted and self.mode == MODE_PROFILE_VELOCITY:
             self._apply_velocity(now)
-        self.halted = halt
         if self.mode == MODE_PROFILE_POSITION:
             if cw & Cw.NEW_SET_POINT and not prev & Cw.NEW_SET_POINT and not halt:
                 self._start_move(now, relative=bool(cw & Cw.RELATIVE))

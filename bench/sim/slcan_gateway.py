@@ -194,6 +194,7 @@ class SlcanGatewaySim:
         if line == "N":
             return f"N{self.serial_number:>4}\r".encode()
         if line == "F":
+            self._pump()
             flags, self.flags = self.flags, 0
             return f"F{flags:02X}\r".encode()
         if line in ("Z0", "Z1") or (cmd in "MmWX" and _is_hex(line[1:]) or cmd == "X"):
