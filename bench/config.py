@@ -14,6 +14,7 @@ from bench.model.imu_simple import ImuModelParams
 from bench.sim.world import WorldParams
 from bench.units import to_units
 from bench.yamlsrc import Fields, Node, load_yaml
+from bench.sim.table_motion import Eccentricity
 from drivers.stepper_speed import BenchSpeedCalibration
 
 CONFIG_SCHEMA = "bench-config/1"
@@ -42,6 +43,8 @@ class SimConfig:
     """python-can virtual-bus channel the simulated CAN devices sit on."""
     node_id: int = 1
     """CANopen node id of the simulated rate table's rotation axis (tilt: node_id + 1)."""
+    periodic_errors: list[Eccentricity] = field(default_factory=list)
+    """Stepper bench / rate table: true-rate errors periodic in the angle (worm eccentricity, microstep ripple)."""
 
 
 @dataclass
@@ -203,6 +206,31 @@ def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpee
     return BenchSpeedCalibration(float(k), b)
 
 
+def microsteps_per_revolution(cal: BenchSpeedCalibration) -> int:
+    """Microsteps per stage revolution implied by the speed calibration, if n is the delay between
+    microsteps in µs [U]: one microstep turns the stage k·1 µs rad (Eq. 3.1), so 2π/(k·1e-6)
+    per revolution (≈ 321 960 for k = 19.5154, i.e. 1600 microsteps per motor turn through a ~1:200 worm)."""
+    return int(round(2 * 3.141592653589793 / (cal.k * 1e-6)))
+
+
+def _periodic_error(node: Node, key: str, default_harmonic: int | None, errors: list[InputError]) -> Eccentricity | None:
+    """``{amplitude: 0.002, harmonic: 200, phase: 0 deg}``: a fractional rate error periodic in the angle."""
+    f = Fields(node, key, errors)
+    amplitude = f.get("amplitude", (int, float), required=True)
+    harmonic = f.get("harmonic", int, default=default_harmonic, required=default_harmonic is None)
+    phase = 0.0
+    if (n := f.node_at("phase")) is not None:
+        phase = _quantity(n, "rad", "phase", errors, 0.0)
+    f.check_unknown()
+    if amplitude is None or harmonic is None:
+        return None
+    try:
+        return Eccentricity(float(amplitude), int(harmonic), phase)
+    except ValueError as exc:
+        errors.append(InputError(str(exc), node.location, key))
+        return None
+
+
 def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConfig | None:
     f = Fields(node, f"instrument {name!r} sim", errors)
     backend = f.get("backend", str, required=True)
@@ -221,6 +249,11 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
     sim.modbus_port = f.get("modbus_port", int, default=0)
     if sim.modbus_port is not None and not 0 <= sim.modbus_port <= 65535:
         errors.append(InputError("expected a TCP port 0..65535 (0: any free port)", f.map["modbus_port"].location, "modbus_port"))
+    for key, default_harmonic in (("eccentricity", None), ("microstep_ripple", microsteps_per_revolution(sim.speed_calibration))):
+        if (n := f.node_at(key)) is not None:
+            err = _periodic_error(n, key, default_harmonic, errors)
+            if err is not None:
+                sim.periodic_errors.append(err)
     sim.can_channel = f.get("can_channel", str, default=DEFAULT_CAN_CHANNEL)
     sim.node_id = f.get("node_id", int, default=1)
     if sim.node_id is not None and not 1 <= sim.node_id <= 126:

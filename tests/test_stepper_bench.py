@@ -128,3 +128,42 @@ def test_realtime_bytes_act_inside_a_line(lab):
     port.write(b"\x18")
     assert port.readline().startswith(b"StepperBench sim")
     assert not devices["stepper_bench"].running
+
+
+def test_worm_eccentricity_period_changes_with_speed(tmp_path):
+    """ESTCube-2 section 4.3: a periodic error on the turning axis whose period differs at every speed."""
+    from bench.lab import open_lab
+
+    text = (ROOT / "configs" / "sim_rotating_bench.yaml").read_text()
+    text = text.replace("      backend: stepper_bench\n", "      backend: stepper_bench\n      eccentricity: {amplitude: 0.01, harmonic: 200}\n")
+    text = text.replace("sensor_model: sensors/", f"sensor_model: {ROOT}/configs/sensors/")
+    cfg = tmp_path / "ecc.yaml"
+    cfg.write_text(text)
+    lab = open_lab(load_config(cfg), ["acs_board", "stepper_bench"], sim=True, realtime=False)
+    try:
+        board, bench, clock = lab.instruments["acs_board"], lab.instruments["stepper_bench"], lab.clock
+        board.sensor_power(True)
+        clock.sleep(1800.0)
+        peaks = {}
+        for rate in (1.0, 3.0):
+            actual = bench.set_rate(rate)
+            bench.run()
+            clock.sleep(10.0)
+            board.poll()
+            board.start_stream()
+            gz = []
+            for _ in range(60):
+                clock.sleep(1.0)
+                gz.append(board.poll().gyro_dps[:, 2])
+            board.stop_stream()
+            bench.stop()
+            z = np.concatenate(gz)
+            spectrum = np.abs(np.fft.rfft(z - z.mean()))
+            freqs = np.fft.rfftfreq(z.size, 0.01)
+            peaks[rate] = (freqs[np.argmax(spectrum[1:]) + 1], actual)
+        for rate, (f_peak, actual) in peaks.items():
+            expected = 200 * actual / 360.0  # one error period per worm turn: 200 per stage revolution
+            assert f_peak == pytest.approx(expected, abs=2.0 / 60), (rate, f_peak, expected)
+        assert peaks[3.0][0] > 2.5 * peaks[1.0][0]
+    finally:
+        lab.close()

@@ -98,6 +98,7 @@ def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_por
 
 
 def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+    world.stage.periodic_errors = tuple(e for e in inst.sim.periodic_errors if e.amplitude)
     return _serial_only(name, StepperBenchSim(clock, world.stage, inst.sim.speed_calibration, inst.sim.serial, inst.baudrate))
 
 
@@ -121,6 +122,8 @@ def _rate_table(name: str, inst: InstrumentConfig, clock, world: World, fixed_po
     from bench.sim.rate_table import RateTableSim
 
     node = inst.sim.node_id
+    if inst.sim.periodic_errors:
+        world.table.rotation.eccentricity = inst.sim.periodic_errors[0]  # the rotation axis's worm gear
     # in-process labs get a channel of their own, so parallel dry-runs never share a bus
     channel = inst.sim.can_channel if fixed_ports else f"{inst.sim.can_channel}-{name}-{id(world):x}"
     sim = RateTableSim(clock, world.table.rotation, world.table.tilt, node_id=node, serial=inst.sim.serial, bus=channel)

@@ -88,5 +88,5 @@ class StepperBenchSim(LineDeviceSim):
         self.stage.set_rate(self.clock.now(), self.rate_dps() if on else 0.0)
 
     def _status(self) -> str:
-        angle = float(self.stage.angle_deg(self.clock.now())) % 360.0
+        angle = float(self.stage.commanded_angle_deg(self.clock.now())) % 360.0
         return f"<{'Run' if self.running else 'Idle'}|N:{self.n}|Pos:{angle:.3f}>"
