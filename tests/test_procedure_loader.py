@@ -139,6 +139,30 @@ def test_sim_config_loads():
     assert inst.sim.model.gyro_noise_density_dps_rthz == pytest.approx(0.005)
 
 
+@pytest.mark.parametrize("name", ["sim.yaml", "sim_rotating_bench.yaml", "lab.example.yaml"])
+def test_shipped_configs_load(name):
+    c = load_config(SIM_CONFIG.parent / name)
+    assert c.instruments
+    if name != "sim_rotating_bench.yaml":
+        assert set(c.instruments) == {"acs_board", "stepper_bench", "thermocouples", "tvac", "rate_table"}
+    assert (c.mode == "sim") == (name == "sim.yaml")
+
+
+def test_instrument_specific_fields_are_checked(tmp_path):
+    bad = tmp_path / "c.yaml"
+    bad.write_text(
+        "schema: bench-config/1\nmode: dream\ninstruments:\n  tvac:\n    driver: tvac\n    port: modbus-tcp://x\n"
+        "  thermocouples:\n    driver: thermocouple_reader\n    port: /dev/x\n    tc_type: J\n    channels: [5]\n"
+        "    sim: {backend: thermocouple_reader, modbus_port: 70000}\n"
+        "  stepper_bench:\n    driver: stepper_bench\n    port: /dev/y\n    sim: {backend: stepper_bench, eccentricity: {amplitude: 2}}\n"
+    )
+    with pytest.raises(InputErrors) as info:
+        load_config(bad)
+    text = "\n".join(e.one_line() for e in info.value.errors)
+    for needle in ("mode", "gauge_port", "tc_type", "channels", "modbus_port", "harmonic"):
+        assert needle in text, (needle, text)
+
+
 def test_bad_config_is_located(tmp_path):
     bad = tmp_path / "c.yaml"
     bad.write_text(
