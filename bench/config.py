@@ -67,6 +67,8 @@ class InstrumentConfig:
     tc_type: str = "K"
     poll_interval_s: float = 1.0
     """Run time between two readings of a polled (non-streaming) instrument (s)."""
+    limits: dict[str, tuple] = field(default_factory=dict)
+    """Safety limits of this lab's instrument: quantity -> (low, high); see bench.procedure.limits."""
 
 
 @dataclass
@@ -79,6 +81,14 @@ class LabConfig:
     flush_interval_s: float = 1.0
     mode: str = "hardware"
     """``sim``: the config describes a simulated lab; commands use its simulators without ``--sim``."""
+
+    def kinds(self) -> dict[str, str]:
+        """Instrument name -> driver."""
+        return {n: i.driver for n, i in self.instruments.items()}
+
+    def limits(self) -> dict[str, dict[str, tuple]]:
+        """Instrument name -> quantity -> (low, high) of this lab."""
+        return {n: i.limits for n, i in self.instruments.items() if i.limits}
 
 
 def load_config(path: str | Path) -> LabConfig:
@@ -184,11 +194,36 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
         poll = _quantity(n, "s", "poll_interval", errors, poll)
         if not 0.05 <= poll <= 3600:
             errors.append(InputError("expected a poll interval between 50 ms and 1 h", n.location, "poll_interval"))
+    limits = _instrument_limits(driver, f.node_at("limits"), errors)
     f.check_unknown()
     if len(errors) > before:
         return None
     return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
-                            channels, tc_type, poll)
+                            channels, tc_type, poll, limits)
+
+
+def _instrument_limits(driver: str | None, node: Node | None, errors: list[InputError]) -> dict[str, tuple]:
+    """``limits: {set_point: [-40 degC, 80 degC]}``: this lab's hardware limits (bench.procedure.limits)."""
+    from bench.procedure.limits import LIMIT_UNITS, parse_limit
+
+    if node is None:
+        return {}
+    units = LIMIT_UNITS.get(driver or "")
+    if units is None:
+        errors.append(InputError(f"no limits can be set for a {driver} (limits exist for: {', '.join(LIMIT_UNITS)})", node.location, "limits"))
+        return {}
+    if not isinstance(node.value, dict):
+        errors.append(InputError("expected a mapping of quantities to limits", node.location, "limits"))
+        return {}
+    out = {}
+    for q, qnode in node.value.items():
+        if q not in units:
+            errors.append(InputError(f"unknown limit {q!r} for a {driver} (expected one of: {', '.join(units)})", node.key_locations[q], q))
+            continue
+        lim = parse_limit(qnode, units[q], q, errors)
+        if lim is not None:
+            out[q] = lim
+    return out
 
 
 def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpeedCalibration:

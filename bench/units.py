@@ -9,11 +9,18 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 from typing import Any
 
 import pint
 
 from bench.errors import InputError, Location
+
+
+_DEG_ABSOLUTE = re.compile(r"(?<![A-Za-z_])(deg[CF]|degree_(?:Celsius|Fahrenheit)|celsius|fahrenheit)\b")
+
+TEMPERATURE_DIFFERENCE = "delta_degC"
+"""Units of temperature differences (bands) and, as ``delta_degC/min``, of temperature rates."""
 
 
 @functools.lru_cache(maxsize=1)
@@ -37,6 +44,10 @@ def to_units(value: Any, units: str, location: Location | None = None, field: st
         return float(value)
     if not isinstance(value, str):
         raise InputError(f"expected a quantity in {units} such as '10 {units}', got {value!r}", location, field)
+    if "delta_deg" in units:
+        # a temperature difference or rate ("0.5 degC", "0.5 degC/min"): degC means a difference
+        # here, not 0.5 °C = 273.65 K
+        value = _DEG_ABSOLUTE.sub(r"delta_\1", value)
     ureg = registry()
     try:
         q = ureg.Quantity(value.strip())

@@ -372,8 +372,11 @@ def test_kinematics_position_moves_end_at_rest_on_the_target(rate0, t_cmd, targe
     grid = np.linspace(t_cmd, t_end, 20_001)
     assert np.max(np.abs(m.commanded_rate_dps(grid))) <= max(rate, abs(rate0)) * (1 + 1e-9)
     if len(grid) > 1 and t_end > t_cmd:
-        steps = np.abs(np.diff(m.commanded_rate_dps(grid))) / (grid[1] - grid[0])
-        assert np.all(steps <= accel * (1 + 1e-6) + 1e-6)
+        h = grid[1] - grid[0]
+        steps = np.abs(np.diff(m.commanded_rate_dps(grid))) / h
+        # rounding of run times near t_end (one ulp of t) shows up divided by a tiny grid step
+        rounding = 4 * accel * np.finfo(float).eps * max(1.0, t_end) / h
+        assert np.all(steps <= accel * (1 + 1e-6) + 1e-6 + rounding)
 
 
 def test_kinematics_history_is_not_rewritten_and_memory_is_bounded():

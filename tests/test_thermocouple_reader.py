@@ -31,9 +31,10 @@ def test_identify_configure_read(logger):
     tc.configure(list(range(101, 109)), "K")
     scan = tc.read()
     assert list(scan.temps_c) == list(range(101, 109))
-    assert all(v == pytest.approx(20.0) for v in scan.temps_c.values())  # the world's 20 degC room
+    # the world's 20 degC room, within the 34970A's type-K accuracy (1.0 degC, docs/thermocouples.md)
+    assert all(v == pytest.approx(20.0, abs=1.0) for v in scan.temps_c.values())
     assert scan.open_channels == []
-    assert tc.reference_junction_c(101) == pytest.approx(20.0)
+    assert tc.reference_junction_c(101) == pytest.approx(20.0, abs=0.8)  # 34901A reference-junction accuracy
 
 
 def test_open_thermocouple_is_detected(logger):
@@ -41,7 +42,7 @@ def test_open_thermocouple_is_detected(logger):
     dev.open_channels = {104}
     tc.configure([101, 102, 103, 104], "T")
     scan = tc.read()
-    assert scan.open_channels == [104] and scan.temps_c[104] is None and scan.temps_c[103] == pytest.approx(20.0)
+    assert scan.open_channels == [104] and scan.temps_c[104] is None and scan.temps_c[103] == pytest.approx(20.0, abs=1.0)
 
 
 def test_instrument_errors_surface(logger):

@@ -103,7 +103,11 @@ def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed
 
 
 def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
-    return _serial_only(name, ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate))
+    from bench.sim.thermocouple_reader import KEYSIGHT_34970A
+
+    dev = ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate,
+                                spec=KEYSIGHT_34970A, installed_types=inst.tc_type, seed=inst.sim.seed)
+    return _serial_only(name, dev, inst.sim.seed)
 
 
 def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:

@@ -1,0 +1,111 @@
+"""Safety limits of the hardware, checked on every step before a run starts.
+
+Three layers, the narrowest wins: the defaults below (what the instrument class can take), the
+lab config's ``limits:`` per instrument (this lab's hardware), and the procedure's ``limits:``
+(this test). A set point, rate, acceleration or tilt outside them is an input error located at
+the step, so nothing moves.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bench.errors import InputError
+from bench.units import TEMPERATURE_DIFFERENCE, to_units
+from bench.yamlsrc import Node
+
+LIMIT_UNITS: dict[str, dict[str, str]] = {
+    "tvac": {"set_point": "degC", "ramp": f"{TEMPERATURE_DIFFERENCE}/min", "pressure": "Torr"},
+    "rate_table": {"rate": "deg/s", "accel": "deg/s**2", "tilt": "deg", "angle": "deg"},
+    "stepper_bench": {"rate": "deg/s"},
+    "acs_board": {"odr": "Hz"},
+}
+"""Driver -> limited quantity -> units."""
+
+SYMMETRIC = {"rate", "accel"}
+"""A single value limits the magnitude: ``rate: 10 deg/s`` means -10..10 deg/s."""
+
+DEFAULT_LIMITS: dict[str, dict[str, tuple[float | None, float | None]]] = {
+    # chamber set point: -40 degC (assumed, below NPSAT1's -29) to +100 degC (bake-out, NPSAT1 IV.D.2)
+    "tvac": {"set_point": (-40.0, 100.0)},
+    # rate table: bench.sim.table_motion defaults [U] (docs/rate-table.md)
+    "rate_table": {"rate": (-60.0, 60.0), "accel": (0.0, 60.0), "tilt": (-120.0, 120.0)},
+    # stepper bench: "limited the speed to maximum of about 3.5 deg/s" (ESTCube-2 section 5)
+    "stepper_bench": {"rate": (-3.5, 3.5)},
+    "acs_board": {"odr": (1.0, 1000.0)},
+}
+
+STEP_LIMITS: dict[str, list[tuple[str, str, str]]] = {
+    "set_temperature": [("set_point", "tvac", "set_point"), ("ramp", "tvac", "ramp")],
+    "pump_down": [("pressure", "tvac", "pressure")],
+    "table_rate": [("rate", "rate_table", "rate"), ("accel", "rate_table", "accel")],
+    "table_move": [("rate", "rate_table", "rate"), ("angle", "rate_table", "angle")],
+    "table_tilt": [("angle", "rate_table", "tilt")],
+    "bench_rate": [("rate", "stepper_bench", "rate")],
+    "configure": [("odr", "acs_board", "odr")],
+}
+"""Step type -> (field, driver, limited quantity)."""
+
+
+def parse_limit(node: Node, units: str, name: str, errors: list[InputError]) -> tuple[float | None, float | None] | None:
+    """``[lo, hi]`` (``null`` for an open end) or, for symmetric quantities, a magnitude."""
+    try:
+        if isinstance(node.value, list):
+            if len(node.value) != 2:
+                raise InputError(f"expected [low, high] such as [-29 degC, 66 degC], got {len(node.value)} values", node.location, name)
+            lo, hi = (None if n.value is None else to_units(n.value, units, n.location, name) for n in node.value)
+            if lo is not None and hi is not None and lo > hi:
+                raise InputError(f"low limit {lo:g} is above high limit {hi:g}", node.location, name)
+            return lo, hi
+        if name in SYMMETRIC:
+            v = abs(to_units(node.value, units, node.location, name))
+            return (-v, v) if name == "rate" else (0.0, v)
+        raise InputError(f"expected [low, high] for {name} (null for an open end)", node.location, name)
+    except InputError as exc:
+        errors.append(exc)
+        return None
+
+
+def effective_limits(kind: str, *layers: dict[str, tuple[Any, ...]]) -> dict[str, tuple[float | None, float | None, str]]:
+    """Intersection of the default limits of ``kind`` with each layer (quantity -> (lo, hi, ...)).
+
+    Returns quantity -> (lo, hi, source) where source names the layer that set the binding bound.
+    """
+    out: dict[str, tuple[float | None, float | None, str]] = {q: (lo, hi, f"{kind} default") for q, (lo, hi) in DEFAULT_LIMITS.get(kind, {}).items()}
+    for layer_name, layer in zip(("lab config", "procedure"), layers):
+        for q, bounds in layer.items():
+            lo, hi = bounds[0], bounds[1]
+            cur_lo, cur_hi, src = out.get(q, (None, None, ""))
+            new_lo = cur_lo if lo is None or (cur_lo is not None and cur_lo >= lo) else lo
+            new_hi = cur_hi if hi is None or (cur_hi is not None and cur_hi <= hi) else hi
+            out[q] = (new_lo, new_hi, layer_name if (new_lo, new_hi) != (cur_lo, cur_hi) else src)
+    return out
+
+
+def check_step_limits(steps, kinds: dict[str, str], config_limits: dict[str, dict[str, tuple[Any, ...]]],
+                      procedure_limits: dict[str, dict[str, tuple[Any, ...]]]) -> list[InputError]:
+    """One located error per step value outside the effective limits of its instrument."""
+    errors: list[InputError] = []
+    cache: dict[str, dict[str, tuple[float | None, float | None, str]]] = {}
+    for step in steps:
+        for fname, kind, quantity in STEP_LIMITS.get(step.type, []):
+            if fname not in step.params:
+                continue
+            inst = step.params.get("instrument", "")
+            if kinds.get(inst, kind) != kind:
+                continue
+            if inst not in cache:
+                cache[inst] = effective_limits(kind, config_limits.get(inst, {}), procedure_limits.get(inst, {}))
+            bounds = cache[inst].get(quantity)
+            if bounds is None:
+                continue
+            lo, hi, src = bounds
+            v = float(step.params[fname])
+            units = LIMIT_UNITS[kind][quantity]
+            if (lo is not None and v < lo) or (hi is not None and v > hi):
+                rng = f"{'-inf' if lo is None else f'{lo:g}'}..{'inf' if hi is None else f'{hi:g}'} {units}"
+                errors.append(InputError(f"step {step.path} ({step.type}): {v:g} {units} is outside the {inst} {quantity} limits {rng} ({src})",
+                                         step.location, fname))
+    return errors
+
+
