@@ -42,7 +42,9 @@ class SimConfig:
     can_channel: str = DEFAULT_CAN_CHANNEL
     """python-can virtual-bus channel the simulated CAN devices sit on."""
     node_id: int = 1
-    """CANopen node id of the simulated rate table's rotation axis (tilt: node_id + 1)."""
+    """CAN node id: the rate table's rotation axis (tilt: node_id + 1), or the board's (default 16)."""
+    transport: str = "uart"
+    """acs_board: ``uart`` (serial) or ``can`` (byte stream in CAN frames, docs/acs-board-can.md)."""
     periodic_errors: list[Eccentricity] = field(default_factory=list)
     """Stepper bench / rate table: true-rate errors periodic in the angle (worm eccentricity, microstep ripple)."""
 
@@ -290,7 +292,10 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
             if err is not None:
                 sim.periodic_errors.append(err)
     sim.can_channel = f.get("can_channel", str, default=DEFAULT_CAN_CHANNEL)
-    sim.node_id = f.get("node_id", int, default=1)
+    sim.transport = f.get("transport", str, default="uart")
+    if sim.transport not in ("uart", "can"):
+        errors.append(InputError(f"expected transport uart or can, got {sim.transport!r}", f.map["transport"].location, "transport"))
+    sim.node_id = f.get("node_id", int, default=16 if backend == "acs_board" else 1)
     if sim.node_id is not None and not 1 <= sim.node_id <= 126:
         errors.append(InputError("expected a CANopen node id 1..126 (the tilt axis takes the next one)", f.map["node_id"].location, "node_id"))
     model_rel = f.get("sensor_model", str)

@@ -16,6 +16,7 @@ from bench.config import InstrumentConfig, LabConfig
 from bench.errors import InputError
 from bench.sim import registry
 from bench.sim.factory import SimInstrument, build_devices, serial_url
+from bench.sim.world import World
 from drivers.acs_board import AcsBoard
 from drivers.rate_table import RateTable
 from drivers.stepper_bench import StepperBench
@@ -44,6 +45,8 @@ class Lab:
     sims: dict[str, SimInstrument] = field(default_factory=dict)
     poll_intervals: dict[str, float] = field(default_factory=dict)
     """Run time between readings of each polled instrument (s), from the config."""
+    world: World | None = None
+    """The simulated world of a dry-run (None on hardware)."""
 
     def close(self) -> None:
         """Close every port, stop simulators and unregister them (errors ignored: this runs on the way out)."""
@@ -80,16 +83,18 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             raise InputError(f"instrument {name!r} used by the procedure is not in the config (has: {', '.join(config.instruments)})", None, "instruments")
     clock: Clock = WallClock() if (realtime or not sim) else VirtualClock()
     sims: dict[str, SimInstrument] = {}
+    world = World(config.world) if sim else None
     if sim:
         try:
-            sims = build_devices(config, clock, names)
+            sims = build_devices(config, clock, names, world=world)
         except ValueError as exc:
             raise InputError(str(exc)) from None
     ports: dict[str, str] = {}
     kwargs: dict[str, dict[str, Any]] = {name: driver_kwargs(config.instruments[name]) for name in names}
     for name in names:
-        if config.instruments[name].driver == "rate_table":
-            kwargs[name]["clock"] = clock  # motion waits run on the lab's clock (virtual in a dry-run)
+        if config.instruments[name].driver == "rate_table" or config.instruments[name].port.startswith("can://") or (
+                sim and config.instruments[name].sim is not None and config.instruments[name].sim.transport == "can"):
+            kwargs[name]["clock"] = clock  # waits run on the lab's clock (virtual in a dry-run)
     for name, s in sims.items():
         for sub, dev in s.serial.items():
             registry.register(serial_url(name, sub).removeprefix("sim://"), dev)
@@ -99,7 +104,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
         ports = {name: config.instruments[name].port for name in names}
     instruments: dict[str, Any] = {}
     lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims,
-              {name: config.instruments[name].poll_interval_s for name in names})
+              {name: config.instruments[name].poll_interval_s for name in names}, world)
     try:
         for name in names:
             inst = config.instruments[name]

@@ -70,8 +70,14 @@ class AcsBoard:
         self.unsolicited_replies = 0
 
     @classmethod
-    def open(cls, url: str, *, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = DEFAULT_TIMEOUT_S, **kwargs) -> "AcsBoard":
-        """Open the board on ``url`` (see :func:`drivers.transport.open_serial`)."""
+    def open(cls, url: str, *, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = DEFAULT_TIMEOUT_S, clock=None, **kwargs) -> "AcsBoard":
+        """Open the board on ``url``: a serial port (:func:`drivers.transport.open_serial`) or a CAN
+        bus ``can://INTERFACE/CHANNEL?node=16`` (:func:`drivers.can_serial.open_can_serial`;
+        ``clock``: the clock reads wait on, the lab's virtual clock in a dry-run)."""
+        if url.startswith("can://"):
+            from drivers.can_serial import open_can_serial
+
+            return cls(open_can_serial(url, timeout_s, clock), timeout_s=timeout_s, **kwargs)
         return cls(open_serial(url, baudrate, timeout_s), timeout_s=timeout_s, **kwargs)
 
     def close(self) -> None:
@@ -92,7 +98,8 @@ class AcsBoard:
 
     def set_odr(self, hz: int) -> None:
         """Set the output data rate in Hz (integer, limited by the link: 38-byte frames at baud/10 bytes/s)."""
-        limit = int(link_bytes_per_s(self.port.baudrate) // proto.DATA_FRAME_LEN)
+        link = getattr(self.port, "link_bytes_per_s", None) or link_bytes_per_s(self.port.baudrate)  # CAN ports know theirs
+        limit = int(link // proto.DATA_FRAME_LEN)
         if not 1 <= hz <= limit:
             raise ValueError(f"output data rate {hz} Hz outside 1..{limit} Hz for {self.port.baudrate} baud")
         self._transact(FrameType.SET_ODR, struct.pack("<H", int(hz)))

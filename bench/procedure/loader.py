@@ -316,6 +316,8 @@ class _Expander:
             return self._instrument(node, fname, spec, doc)
         if spec.kind == "signal":
             return v if self._signal_units(node, doc) is not None else None
+        if spec.kind == "vibration":
+            return self._vibration(node, fname, doc)
         if spec.kind == "bool":
             if not isinstance(v, bool):
                 self.errors.append(InputError(f"expected true or false, got {v!r}", loc, fname))
@@ -346,6 +348,21 @@ class _Expander:
             self.errors.append(InputError(f"{value:g} {units} is outside the allowed range {lo}..{hi} {units}".replace("  ", " "), loc, fname))
             return None
         return value
+
+    def _vibration(self, node: Node, fname: str, doc: _Doc) -> str | None:
+        """A vibration profile file relative to the procedure, loaded now so its errors show at validation."""
+        from bench.sim.vibration import load_vibration
+
+        if not isinstance(node.value, str):
+            self.errors.append(InputError("expected the path of a vibration file", node.location, fname))
+            return None
+        path = (doc.src.path.parent / node.value).resolve()
+        try:
+            load_vibration(path)
+        except InputError as exc:
+            self.errors.append(InputError(f"vibration profile: {exc.one_line()}", node.location, fname))
+            return None
+        return str(path)
 
     def _instrument(self, node: Node, fname: str, spec: FieldSpec, doc: _Doc) -> str | None:
         v = node.value

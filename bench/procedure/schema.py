@@ -22,7 +22,7 @@ SCHEMA_ID = "bench-procedure/1"
 
 @dataclass(frozen=True)
 class FieldSpec:
-    """One field of a step. ``kind``: instrument | quantity | int | bool | str | signal | choice | quantities."""
+    """One field of a step. ``kind``: instrument | quantity | int | bool | str | signal | choice | vibration (a file)."""
 
     kind: str
     units: str = ""
@@ -145,6 +145,15 @@ STEP_TYPES: dict[str, StepSpec] = {
         {"instrument": BENCH, "rate": FieldSpec("quantity", "deg/s", doc="bench rate (signed; 0 stops)"),
          "settle": FieldSpec("quantity", "s", required=False, default=0.0, minimum=0.0, doc="wait this long afterwards")},
         "Turn the stepper bench at a rate (converted to its speed parameter n with the bench calibration).",
+    ),
+    "vibrate": StepSpec(
+        {
+            "profile": FieldSpec("vibration", doc="vibration file (bench-vibration/1), relative to the procedure, e.g. ../configs/vibration/gevs_workmanship.yaml"),
+            "axis": FieldSpec("choice", choices=("x", "y", "z", "-x", "-y", "-z"), doc="shaker axis in the unit's frame"),
+            "record": FieldSpec("instrument", required=False, instrument_kinds=("acs_board",), doc="stream this board meanwhile"),
+            "window": FieldSpec("str", required=False, default="", doc="window name of that recording"),
+        },
+        "Shake the unit with a random-vibration or sine-sweep profile (hardware: the operator runs the shaker and confirms).",
     ),
     "check": StepSpec(
         {

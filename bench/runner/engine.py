@@ -2,12 +2,18 @@
 
 Outcomes: every step ends ``passed`` (a check held), ``failed`` (a check did not hold; the run
 goes on and ends with exit code 1), ``done`` (an action), or ``aborted``. An instrument fault, a
-recorder failure or an abort request (SIGINT/SIGTERM) stops the run: every instrument is brought
-to its safe state, the run file is closed with status ``aborted`` and the reason.
+recorder failure, an interlock trip, a step that cannot go on or an abort request (SIGINT/SIGTERM)
+stops the run: every instrument is brought to its safe state, the run file is closed with status
+``aborted`` and the reason.
+
+While any step waits, the runner keeps the lab under watch (:meth:`Runner.wait_until`): polled
+instruments are read at their poll interval and logged, streams are drained, interlocks are
+evaluated, the run file is flushed, pause and abort requests are honoured.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
@@ -17,7 +23,12 @@ import numpy as np
 from bench.errors import BenchError, InstrumentError, RecorderError
 from bench.lab import Lab
 from bench.procedure import Procedure, Step
+from bench.procedure.signals import parse_signal
 from bench.record import Column, RunRecorder
+from bench.runner import steps as step_handlers
+from bench.runner.operator import Operator
+from bench.runner.steps import StepAbort
+from bench.runner.windows import Windows
 
 ACS_COLUMNS = [
     Column("counter", "1", "u2"),
@@ -70,6 +81,7 @@ class RunResult:
     wall_time_s: float
     rows: dict[str, int] = field(default_factory=dict)
     stream_stats: dict[str, dict[str, int]] = field(default_factory=dict)
+    checks: list[dict] = field(default_factory=list)
 
     @property
     def failed_steps(self) -> list[StepOutcome]:
@@ -80,15 +92,20 @@ class RunResult:
         return self.status == "completed" and not self.failed_steps
 
 
+class InterlockTrip(BenchError):
+    """An interlock's signal left its limits."""
+
+
 class Runner:
     """Runs one procedure on one lab into one recorder."""
 
-    def __init__(self, procedure: Procedure, lab: Lab, recorder: RunRecorder, progress: Progress):
+    def __init__(self, procedure: Procedure, lab: Lab, recorder: RunRecorder, progress: Progress, operator: Operator | None = None):
         self.procedure = procedure
         self.lab = lab
         self.clock = lab.clock
         self.rec = recorder
         self.progress = progress
+        self.operator = operator or Operator()
         self.abort_reason = ""
         self.current_step = -1
         self.outcomes: list[StepOutcome] = []
@@ -96,24 +113,28 @@ class Runner:
         self.stream_stats: dict[str, dict[str, int]] = {}
         self._time_offset: dict[str, float | None] = {}
         self._last_gyro: dict[str, np.ndarray] = {}
-        self._last_temp = float("nan")
+        self._last_stream: dict[str, dict[str, np.ndarray]] = {}
+        self._last_frame_t: dict[str, float] = {}
         self.monitor_keys: dict[str, str] = {}
         self._monitor_due: dict[str, float] = {}
         self._last_monitor: dict[str, dict[str, float]] = {}
-        self.handlers: dict[str, Callable[[Step], tuple[str, str]]] = {
-            "comment": self._comment,
-            "power": self._power,
-            "configure": self._configure,
-            "record": self._record,
-            "wait": self._wait,
-            "bit": self._bit,
-        }
+        self.streaming: set[str] = set()
+        self.windows = Windows()
+        self.results: dict[str, dict] = {}
+        self.in_vacuum = False
+        self.paused = False
+        self.handlers: dict[str, Callable[["Runner", Step], tuple[str, str]]] = dict(step_handlers.HANDLERS)
 
-    # ---- abort ------------------------------------------------------------------------------
+    # ---- abort and pause ----------------------------------------------------------------------
     def request_abort(self, reason: str) -> None:
         """Ask the run to stop at the next check point (safe to call from a signal handler)."""
         if not self.abort_reason:
             self.abort_reason = reason
+
+    def toggle_pause(self) -> None:
+        """Pause or resume (safe to call from a signal handler). While paused, timed steps stop
+        counting; polled instruments, streams and interlocks stay under watch."""
+        self.paused = not self.paused
 
     def _check_abort(self) -> None:
         if self.abort_reason:
@@ -136,8 +157,13 @@ class Runner:
             self.stream_keys[name] = self.rec.add_stream(name, ACS_COLUMNS)
             self.stream_stats[name] = {"frames": 0, "crc_errors": 0, "dropped_frames": 0, "garbage_bytes": 0}
             self._time_offset[name] = None
+        for lock in self.procedure.interlocks:
+            inst = lock.signal.split(".", 1)[0]
+            if inst not in self.lab.instruments:
+                raise StepAbort(f"interlock {lock.name!r} watches {inst!r}, which is not open in this run")
         self.rec.start()
         self.rec.event("run_start", "runner", f"{self.procedure.name}: {len(self.procedure.steps)} steps, mode {self.lab.mode}", t_s=self.clock.now())
+        self._poll_monitors(self.clock.now())
 
     def run(self) -> RunResult:
         """Execute every step; never raises for instrument or recorder faults (they abort the run)."""
@@ -153,12 +179,14 @@ class Runner:
                 self.progress.step(step.index + 1, total, step)
                 t0 = self.clock.now()
                 self.rec.event("step_start", step.type, step.name, t_s=t0, step=step.index)
-                outcome, message = self.handlers[step.type](step)
+                outcome, message = self.handlers[step.type](self, step)
                 t1 = self.clock.now()
                 self.rec.event("step_end", step.type, outcome if not message else f"{outcome}: {message}", t_s=t1, step=step.index)
                 self.outcomes.append(StepOutcome(step.index, step.name, step.type, outcome, message, t0, t1))
+                if outcome == "failed":
+                    self.progress.message(f"step {step.index + 1} {step.name}: FAILED {message}")
                 self.rec.tick(t1)
-        except (AbortRequested, InstrumentError, RecorderError, OSError, ValueError) as exc:
+        except (AbortRequested, InstrumentError, RecorderError, StepAbort, InterlockTrip, OSError, ValueError) as exc:
             status = "aborted"
             self.abort_reason = self.abort_reason or _describe(exc)
             self._abort_path()
@@ -166,8 +194,9 @@ class Runner:
             self.progress.stop(self.clock.now())
         run_time = self.clock.now()
         self._close(status)
-        rows = {name: self.rec.rows_written(key) for name, key in self.stream_keys.items()}
-        return RunResult(status, self.abort_reason, self.outcomes, run_time, time.monotonic() - wall0, rows, self.stream_stats)
+        rows = {name: self.rec.rows_written(key) for name, key in {**self.stream_keys, **self.monitor_keys}.items()}
+        return RunResult(status, self.abort_reason, self.outcomes, run_time, time.monotonic() - wall0, rows, self.stream_stats,
+                         list(self.results.values()))
 
     def _abort_path(self) -> None:
         t = self.clock.now()
@@ -182,10 +211,11 @@ class Runner:
                 drv.safe_state()
                 if name in self.stream_keys:
                     self._drain(name)
-                self._event("safe_state", name, "streaming stopped" if name in self.stream_keys else "stopped")
+                self._event("safe_state", name, "streaming stopped" if name in self.stream_keys else "safe state reached")
             except (BenchError, OSError, ValueError) as exc:
                 self._event("error", name, f"safe state failed: {_describe(exc)}")
                 self.progress.message(f"{name}: safe state failed: {_describe(exc)}")
+        self.streaming.clear()
 
     def _event(self, kind: str, source: str, message: str, step: int = -1) -> None:
         """Record an event on the abort path, where the recorder itself may be what failed."""
@@ -205,6 +235,136 @@ class Runner:
             except (RecorderError, OSError, ValueError):
                 pass
             raise RecorderError(f"the run file could not be finalised: {_describe(exc)}") from None
+
+    # ---- waiting ----------------------------------------------------------------------------
+    def wait_until(self, timeout_s: float, condition: Callable[[], bool] | None = None) -> bool:
+        """Wait up to ``timeout_s`` of run time (paused time not counted) for ``condition``;
+        without one, wait the whole time. Returns whether the condition held (True when there is
+        none). The lab stays under watch meanwhile; an abort request or interlock trip raises."""
+        period = POLL_PERIOD_VIRTUAL_S if self.clock.virtual else POLL_PERIOD_WALL_S
+        t_end = self.clock.now() + timeout_s
+        next_drain = min(self.clock.now() + period, t_end)
+        if condition is not None and condition():
+            return True
+        while True:
+            self._check_abort()
+            now = self.clock.now()
+            if self.paused:
+                self._hold_while_paused(period)
+                t_end += self.clock.now() - now
+                next_drain = self.clock.now()
+                continue
+            if now >= t_end:
+                return condition is None
+            wake = min([next_drain, t_end, *self._monitor_due.values()])
+            self.clock.sleep_until(max(wake, now))
+            t = self.clock.now()
+            self._poll_monitors(t)
+            if t + 1e-9 >= next_drain:
+                next_drain = min(t + period, t_end)
+                for name in list(self.streaming):
+                    self._drain(name)
+                self._check_stalls(self.clock.now())
+                self.rec.tick(self.clock.now())
+                self.progress.advance(self.clock.now(), self._readings())
+            if condition is not None and condition():
+                return True
+
+    def _hold_while_paused(self, period: float) -> None:
+        self.progress.message("paused: timed steps are on hold, instruments stay under watch (pause again to resume)")
+        self._event("pause", "operator", "paused")
+        while self.paused:
+            self._check_abort()
+            now = self.clock.now()
+            self.clock.sleep_until(min([now + period, *self._monitor_due.values()]) if self._monitor_due else now + period)
+            self._poll_monitors(self.clock.now())
+            for name in list(self.streaming):
+                self._drain(name)
+            self.rec.tick(self.clock.now())
+            if not self.clock.virtual:
+                time.sleep(0)  # let a signal handler run
+        self._event("resume", "operator", "resumed")
+        self.progress.message("resumed")
+
+    def recording(self, name: str, window: str, meta: dict, body: Callable[[], object]) -> int:
+        """Stream instrument ``name`` into window ``window`` while ``body()`` runs; returns rows."""
+        drv = self.lab.instruments[name]
+        before = self.rec.rows_written(self.stream_keys[name])
+        self._time_offset[name] = None
+        self.windows.start(window, self.clock.now(), meta)
+        drv.start_stream()
+        self.streaming.add(name)
+        self._last_frame_t[name] = self.clock.now()
+        try:
+            body()
+        finally:
+            self.streaming.discard(name)
+        drv.stop_stream()
+        self._drain(name)
+        self.windows.end(window, self.clock.now())
+        return self.rec.rows_written(self.stream_keys[name]) - before
+
+    # ---- signals ----------------------------------------------------------------------------
+    def poll_interval(self, signal: str) -> float:
+        return self.lab.poll_intervals.get(signal.split(".", 1)[0], 1.0)
+
+    def read_signal(self, signal: str, fresh: bool = False) -> float:
+        """Latest value of ``INSTRUMENT.COLUMN[.AXIS]``: a polled reading (``fresh``: read now) or
+        the newest frame of a stream. NaN when nothing has been read yet."""
+        inst, column, axis = parse_signal(signal)
+        if inst in self.monitor_keys:
+            if fresh:
+                self._poll_one(inst, self.clock.now())
+            return float(self._last_monitor.get(inst, {}).get(column, float("nan")))
+        last = self._last_stream.get(inst, {}).get(column)
+        if last is None:
+            return float("nan")
+        return float(last[axis if axis is not None else 0])
+
+    def _poll_monitors(self, t: float) -> None:
+        """Read every polled instrument whose interval has come, log a row, evaluate interlocks."""
+        for name, due in list(self._monitor_due.items()):
+            if t + 1e-9 < due:
+                continue
+            self._poll_one(name, t)
+            interval = self.lab.poll_intervals.get(name, 1.0)
+            self._monitor_due[name] = due + interval if due + interval > t else t + interval
+
+    def _poll_one(self, name: str, t: float) -> None:
+        values = self.lab.instruments[name].monitor()
+        self.rec.append(self.monitor_keys[name], np.array([t]), **{k: np.array([v], dtype=float) for k, v in values.items()})
+        self._last_monitor[name] = values
+        if self.windows.any_open:
+            for col, v in values.items():
+                self.windows.feed(f"{name}.{col}", np.array([t]), np.array([v], dtype=float))
+        self._check_interlocks(name)
+
+    def _check_interlocks(self, inst: str) -> None:
+        for lock in self.procedure.interlocks:
+            if lock.stall_s is not None or not lock.signal.startswith(inst + "."):
+                continue
+            if lock.active == "vacuum" and not self.in_vacuum:
+                continue
+            v = self.read_signal(lock.signal)
+            if math.isnan(v):
+                if inst in self._last_monitor and lock.signal.split(".")[1] in self._last_monitor[inst]:
+                    self._trip(f"interlock {lock.name!r}: {lock.signal} has no valid reading (open sensor?)", lock)
+                continue
+            if (lock.minimum is not None and v < lock.minimum) or (lock.maximum is not None and v > lock.maximum):
+                lim = f"min {lock.minimum:g}" if lock.minimum is not None and v < lock.minimum else f"max {lock.maximum:g}"
+                self._trip(f"interlock {lock.name!r}: {lock.signal} = {v:.4g} beyond {lim}", lock)
+
+    def _check_stalls(self, t: float) -> None:
+        for lock in self.procedure.interlocks:
+            if lock.stall_s is None or lock.signal not in self.streaming:
+                continue
+            gap = t - self._last_frame_t.get(lock.signal, t)
+            if gap > lock.stall_s:
+                self._trip(f"interlock {lock.name!r}: no frames from {lock.signal} for {gap:.1f} s (limit {lock.stall_s:g} s)", lock)
+
+    def _trip(self, reason: str, lock) -> None:
+        self.request_abort(reason)
+        raise InterlockTrip(reason)
 
     # ---- streams ----------------------------------------------------------------------------
     def _drain(self, name: str) -> int:
@@ -234,106 +394,28 @@ class Runner:
             mag=batch.mag_ut, temp=batch.temp_degc, status=batch.status,
         )
         stats["frames"] += n
+        self._last_frame_t[name] = float(time_s[-1])
+        columns = {"gyro": batch.gyro_dps, "accel": batch.accel_g, "mag": batch.mag_ut, "temp": batch.temp_degc}
+        self._last_stream[name] = {c: v[-1] for c, v in columns.items()}
         self._last_gyro[name] = batch.gyro_dps.mean(axis=0)
-        self._last_temp = float(batch.temp_degc[-1, 0])
+        if self.windows.any_open:
+            for c, v in columns.items():
+                for k, axis in enumerate("xyz"):
+                    self.windows.feed(f"{name}.{c}.{axis}", time_s, v[:, k])
+                if c == "temp":
+                    self.windows.feed(f"{name}.temp", time_s, v[:, 0])
         return n
 
-    # ---- step handlers: each returns (outcome, message) -------------------------------------
-    def _comment(self, step: Step) -> tuple[str, str]:
-        self.progress.message(step.params["text"])
-        self.rec.event("note", "procedure", step.params["text"], t_s=self.clock.now(), step=step.index)
-        return "done", ""
-
-    def _power(self, step: Step) -> tuple[str, str]:
-        name = step.params["instrument"]
-        self.lab.instruments[name].sensor_power(step.params["on"])
-        return "done", "sensors on" if step.params["on"] else "sensors off"
-
-    def _configure(self, step: Step) -> tuple[str, str]:
-        drv = self.lab.instruments[step.params["instrument"]]
-        done = []
-        if "odr" in step.params:
-            hz = step.params["odr"]
-            if abs(hz - round(hz)) > 1e-9:
-                raise ValueError(f"step {step.index + 1}: output data rate must be a whole number of Hz, got {hz:g} Hz")
-            drv.set_odr(int(round(hz)))
-            done.append(f"odr {int(round(hz))} Hz")
-        if "moving_average" in step.params:
-            drv.set_moving_average(int(step.params["moving_average"]))
-            done.append(f"moving average N={int(step.params['moving_average'])}")
-        cfg = drv.get_config()
-        if "odr" in step.params and cfg["odr_hz"] != int(round(step.params["odr"])) or (
-            "moving_average" in step.params and cfg["moving_avg_n"] != int(step.params["moving_average"])
-        ):
-            return "failed", ", ".join(done) + f" requested, but the board reports odr {cfg['odr_hz']} Hz, N={cfg['moving_avg_n']}"
-        return "done", ", ".join(done) + " (read back from the board)"
-
-    def _wait(self, step: Step) -> tuple[str, str]:
-        self._sleep_checked(self.clock.now() + step.params["duration"], [])
-        return "done", ""
-
-    def _record(self, step: Step) -> tuple[str, str]:
-        name = step.params["instrument"]
-        drv = self.lab.instruments[name]
-        before = self.rec.rows_written(self.stream_keys[name])
-        self._time_offset[name] = None
-        drv.start_stream()
-        t_end = self.clock.now() + step.params["duration"]
-        self._sleep_checked(t_end, [name])
-        drv.stop_stream()
-        self._drain(name)
-        rows = self.rec.rows_written(self.stream_keys[name]) - before
-        window = step.params.get("window") or step.name
-        return "done", f"{rows} rows in window {window!r}"
-
-    def _sleep_checked(self, t_end: float, streams: list[str]) -> None:
-        """Wait until run time ``t_end`` (s), draining ``streams``, reading the polled instruments
-        when due, flushing, checking for aborts."""
-        period = POLL_PERIOD_VIRTUAL_S if self.clock.virtual else POLL_PERIOD_WALL_S
-        next_drain = min(self.clock.now() + period, t_end)
-        while True:
-            self._check_abort()
-            now = self.clock.now()
-            if now >= t_end:
-                break
-            wake = min([next_drain, *self._monitor_due.values()])
-            self.clock.sleep_until(max(wake, now))
-            t = self.clock.now()
-            self._poll_monitors(t)
-            if t + 1e-9 < next_drain:
-                continue  # woken for a polled instrument only
-            next_drain = min(t + period, t_end)
-            for name in streams:
-                self._drain(name)
-            t = self.clock.now()
-            self.rec.tick(t)
-            self.progress.advance(t, self._readings(streams))
-
-    def _poll_monitors(self, t: float) -> None:
-        """Read every polled instrument whose interval has come and append one row for it."""
-        for name, due in self._monitor_due.items():
-            if t + 1e-9 < due:
-                continue
-            values = self.lab.instruments[name].monitor()
-            self.rec.append(self.monitor_keys[name], np.array([t]), **{k: np.array([v], dtype=float) for k, v in values.items()})
-            self._last_monitor[name] = values
-            interval = self.lab.poll_intervals.get(name, 1.0)
-            self._monitor_due[name] = due + interval if due + interval > t else t + interval
-
-    def _readings(self, streams: list[str]) -> str:
-        parts = [f"{name} " + ", ".join(f"{k} {v:.4g}" for k, v in vals.items()) for name, vals in self._last_monitor.items()]
-        for name in streams:
+    def _readings(self) -> str:
+        parts = []
+        for name in self.streaming:
             g = self._last_gyro.get(name)
             if g is not None:
-                parts.append(f"gyro {g[0]:+.3f} {g[1]:+.3f} {g[2]:+.3f} deg/s, {self._last_temp:.1f} degC")
+                t = self._last_stream.get(name, {}).get("temp")
+                parts.append(f"gyro {g[0]:+.3f} {g[1]:+.3f} {g[2]:+.3f} deg/s" + (f", {t[0]:.1f} degC" if t is not None else ""))
+        for name, vals in self._last_monitor.items():
+            parts.append(f"{name} " + " ".join(f"{k} {v:.4g}" for k, v in list(vals.items())[:3]))
         return "; ".join(parts)
-
-    def _bit(self, step: Step) -> tuple[str, str]:
-        mask = self.lab.instruments[step.params["instrument"]].run_bit()
-        expected = step.params["expect_mask"]
-        if mask == expected:
-            return "passed", f"failed-subsystem mask 0x{mask:04x}"
-        return "failed", f"failed-subsystem mask 0x{mask:04x}, expected 0x{expected:04x}"
 
 
 def _describe(exc: BaseException) -> str:

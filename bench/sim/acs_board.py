@@ -12,6 +12,7 @@ the first sample after sensor power-on or a length change (ESTCube-2 thesis sect
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import struct
 import threading
@@ -187,6 +188,10 @@ class AcsBoardSim:
         n = t.shape[0]
         temp = self.world.unit_temperature_c(t)
         env = self.world.environment(t)
+        if self.world.vibration.overlaps(float(t[0]), float(t[-1])):
+            # the shaker is bolted to the fixture: its acceleration is already in the unit's frame
+            vib = self.world.vibration.specific_force_g(t, lowpass_hz=self.model.p.lowpass_cutoff_hz)
+            env = dataclasses.replace(env, specific_force_g=np.broadcast_to(env.specific_force_g, vib.shape) + vib)
         gyro, accel, mag = self.model.sample(t - self.power_on_t, temp, env, self.odr_hz)
         raw = np.concatenate([gyro, accel, mag], axis=1)
         raw = self._moving_average(raw)

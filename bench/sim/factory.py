@@ -94,7 +94,15 @@ def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_por
     model = SimpleImuModel(inst.sim.model, rng)
     dev = AcsBoardSim(clock, world, model, AcsBoardIdentity(serial=inst.sim.serial), baudrate=inst.baudrate,
                       bit_fail_mask=inst.sim.bit_fail_mask)
-    return _serial_only(name, dev, inst.sim.seed)
+    if inst.sim.transport != "can":
+        return _serial_only(name, dev, inst.sim.seed)
+    from bench.sim.can_serial_bridge import CanSerialBridge
+
+    node = inst.sim.node_id
+    channel = inst.sim.can_channel if fixed_ports else f"{inst.sim.can_channel}-{name}-{id(world):x}"
+    bridge = CanSerialBridge(dev, channel, node=node, seed=inst.sim.seed)
+    return SimInstrument(name, bridge, url=f"can://virtual/{channel}?node={node}", closers=[bridge.close],
+                         endpoints=[("can", f"python-can virtual channel {channel!r} (this process), node {node}")])
 
 
 def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:

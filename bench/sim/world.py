@@ -28,6 +28,7 @@ from bench.params import dataclass_from_dict
 from bench.sim.chamber import Chamber, ChamberParams
 from bench.sim.stage import RotatingStage
 from bench.sim.table_motion import TableMotion
+from bench.sim.vibration import VibrationSchedule
 
 
 @dataclass
@@ -52,6 +53,9 @@ class World:
         self.p = params
         self.stage = RotatingStage()
         self.table = TableMotion()
+        self.vibration = VibrationSchedule()
+        """Shaker events (random vibration, sine sweeps) in the unit's frame; sensor simulators add
+        them to the specific force through their own low-pass (docs/vibration.md)."""
         self.chamber = Chamber(params.chamber, ambient_temp_c=params.ambient_temp_c)
         self._earth = earth_rate_dps(params.latitude_deg)
         self._field = np.asarray(params.field_ut, dtype=float)

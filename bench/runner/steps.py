@@ -1,0 +1,286 @@
+"""What each action step does to the instruments: one handler per step type.
+
+Handlers return ``(outcome, message)``: ``done`` (an action), ``passed`` / ``failed`` (a check);
+a condition that makes going on pointless or unsafe (a chamber that never reaches its set point,
+an operator who says no) raises :class:`StepAbort`, which sends the run to the safe state.
+Every wait goes through the runner's :meth:`~bench.runner.engine.Runner.wait_until`, so aborts,
+pauses, polled readings, streams and interlocks keep working during it, and every wait has a
+timeout.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from bench.errors import BenchError
+from bench.procedure import Step
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.runner.engine import Runner
+
+RATE_TOLERANCE_DPS = 0.002
+"""A table rate counts as reached within 2 mdeg/s (two encoder counts per second at 0.001 deg)."""
+ANGLE_TOLERANCE_DEG = 0.002
+MOTION_TIMEOUT_S = 600.0
+"""Longest a table or bench motion may take before the run aborts (s)."""
+
+
+class StepAbort(BenchError):
+    """A step cannot go on; the run aborts to the safe state with this reason."""
+
+
+def comment(r: "Runner", step: Step) -> tuple[str, str]:
+    r.progress.message(step.params["text"])
+    r.rec.event("note", "procedure", step.params["text"], t_s=r.clock.now(), step=step.index)
+    return "done", ""
+
+
+def prompt(r: "Runner", step: Step) -> tuple[str, str]:
+    key = step.params.get("id") or step.name
+    answer, source = r.operator.ask(key, step.params["text"], simulated=r.lab.mode == "sim")
+    r.rec.event("operator", "prompt", json.dumps({"id": key, "text": step.params["text"], "answer": answer, "source": source}),
+                t_s=r.clock.now(), step=step.index)
+    if answer.strip().lower() not in ("y", "yes", "ok", "done", "confirmed", "true"):
+        raise StepAbort(f"operator answered {answer!r} at prompt {key!r}: {step.params['text']}")
+    return "done", f"confirmed ({source})"
+
+
+def power(r: "Runner", step: Step) -> tuple[str, str]:
+    r.lab.instruments[step.params["instrument"]].sensor_power(step.params["on"])
+    return "done", "sensors on" if step.params["on"] else "sensors off"
+
+
+def configure(r: "Runner", step: Step) -> tuple[str, str]:
+    drv = r.lab.instruments[step.params["instrument"]]
+    done = []
+    if "odr" in step.params:
+        hz = step.params["odr"]
+        if abs(hz - round(hz)) > 1e-9:
+            raise ValueError(f"step {step.path}: output data rate must be a whole number of Hz, got {hz:g} Hz")
+        drv.set_odr(int(round(hz)))
+        done.append(f"odr {int(round(hz))} Hz")
+    if "moving_average" in step.params:
+        drv.set_moving_average(int(step.params["moving_average"]))
+        done.append(f"moving average N={int(step.params['moving_average'])}")
+    cfg = drv.get_config()
+    if "odr" in step.params and cfg["odr_hz"] != int(round(step.params["odr"])) or (
+        "moving_average" in step.params and cfg["moving_avg_n"] != int(step.params["moving_average"])
+    ):
+        return "failed", ", ".join(done) + f" requested, but the board reports odr {cfg['odr_hz']} Hz, N={cfg['moving_avg_n']}"
+    return "done", ", ".join(done) + " (read back from the board)"
+
+
+def wait(r: "Runner", step: Step) -> tuple[str, str]:
+    r.wait_until(step.params["duration"])
+    return "done", ""
+
+
+def record(r: "Runner", step: Step) -> tuple[str, str]:
+    name = step.params["instrument"]
+    window = step.params.get("window") or step.name
+    rows = r.recording(name, window, step.meta, lambda: r.wait_until(step.params["duration"]))
+    return "done", f"{rows} rows in window {window!r}"
+
+
+def bit(r: "Runner", step: Step) -> tuple[str, str]:
+    mask = r.lab.instruments[step.params["instrument"]].run_bit()
+    expected = step.params["expect_mask"]
+    if mask == expected:
+        return "passed", f"failed-subsystem mask 0x{mask:04x}"
+    return "failed", f"failed-subsystem mask 0x{mask:04x}, expected 0x{expected:04x}"
+
+
+# ---- chamber ------------------------------------------------------------------------------------
+def set_temperature(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    drv = r.lab.instruments[p["instrument"]]
+    drv.set_point(p["set_point"], p.get("ramp", 0.0))
+    what = f"set point {p['set_point']:g} degC" + (f" at {p['ramp']:g} degC/min" if p.get("ramp") else "")
+    if not p.get("wait"):
+        return "done", what
+    sig = f"{p['instrument']}.air_temp"
+    ok = r.wait_until(p["timeout"], lambda: abs(r.read_signal(sig) - p["set_point"]) <= p["band"])
+    if not ok:
+        raise StepAbort(f"chamber air did not reach {p['set_point']:g} degC ± {p['band']:g} within {p['timeout']:g} s (now {r.read_signal(sig):.1f} degC)")
+    return "done", f"{what}; reached ({r.read_signal(sig):.1f} degC)"
+
+
+def pump_down(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    r.lab.instruments[p["instrument"]].pump_down()
+    sig = f"{p['instrument']}.pressure"
+    if not r.wait_until(p["timeout"], lambda: r.read_signal(sig) <= p["pressure"]):
+        raise StepAbort(f"pressure did not fall to {p['pressure']:g} Torr within {p['timeout']:g} s (now {r.read_signal(sig):.3g} Torr)")
+    r.in_vacuum = True
+    return "done", f"{r.read_signal(sig):.3g} Torr"
+
+
+def vent(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    r.in_vacuum = False
+    r.lab.instruments[p["instrument"]].vent()
+    sig = f"{p['instrument']}.pressure"
+    if not r.wait_until(p["timeout"], lambda: r.read_signal(sig) >= p["pressure"]):
+        raise StepAbort(f"pressure did not rise to {p['pressure']:g} Torr within {p['timeout']:g} s")
+    return "done", f"{r.read_signal(sig):.3g} Torr"
+
+
+def wait_until_stable(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    history: list[tuple[float, float]] = []
+
+    def stable() -> bool:
+        t, v = r.clock.now(), r.read_signal(p["signal"])
+        if not math.isfinite(v):
+            history.clear()
+            return False
+        history.append((t, v))
+        while history and t - history[0][0] > p["hold"]:
+            history.pop(0)
+        values = [x for _, x in history]
+        held = len(history) > 1 and t - history[0][0] >= p["hold"] - 1e-9 - r.poll_interval(p["signal"])
+        return held and max(values) - min(values) <= p["band"]
+
+    def run() -> bool:
+        return r.wait_until(p["timeout"], stable)
+
+    if p.get("record"):
+        ok = [False]
+        window = p.get("window") or step.name
+
+        def body() -> None:
+            ok[0] = run()
+
+        r.recording(p["record"], window, step.meta, body)
+        ok = ok[0]
+    else:
+        ok = run()
+    if not ok:
+        raise StepAbort(f"{p['signal']} not stable within {p['band']:g} over {p['hold']:g} s after {p['timeout']:g} s")
+    return "done", f"{p['signal']} stable at {r.read_signal(p['signal']):.4g}"
+
+
+# ---- rate table and stepper bench -----------------------------------------------------------------
+def table_rate(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    drv = r.lab.instruments[p["instrument"]]
+    actual = drv.set_rate(p["rate"], p.get("accel"))
+    sig = f"{p['instrument']}.rate"
+    if not r.wait_until(MOTION_TIMEOUT_S, lambda: abs(r.read_signal(sig, fresh=True) - actual) <= RATE_TOLERANCE_DPS):
+        raise StepAbort(f"table did not reach {actual:g} deg/s within {MOTION_TIMEOUT_S:g} s")
+    if p.get("settle"):
+        r.wait_until(p["settle"])
+    return "done", f"{actual:+g} deg/s"
+
+
+def _wait_target(r: "Runner", inst: str, what: str) -> None:
+    drv = r.lab.instruments[inst]
+
+    def reached() -> bool:
+        s = drv.read()
+        if s["any_fault"]:
+            raise StepAbort(f"{inst}: drive fault during {what}")
+        return bool(s["target_reached"] and s["tilt_target_reached"])
+
+    if not r.wait_until(MOTION_TIMEOUT_S, reached):
+        raise StepAbort(f"{inst}: {what} not finished within {MOTION_TIMEOUT_S:g} s")
+
+
+def table_move(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    r.lab.instruments[p["instrument"]].move_to(p["angle"], p.get("rate"))
+    _wait_target(r, p["instrument"], f"move to {p['angle']:g} deg")
+    return "done", f"at {r.read_signal(p['instrument'] + '.angle', fresh=True):.3f} deg"
+
+
+def table_tilt(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    r.lab.instruments[p["instrument"]].tilt(p["angle"])
+    _wait_target(r, p["instrument"], f"tilt to {p['angle']:g} deg")
+    return "done", f"tilted {r.read_signal(p['instrument'] + '.tilt', fresh=True):.3f} deg"
+
+
+def table_stop(r: "Runner", step: Step) -> tuple[str, str]:
+    inst = step.params["instrument"]
+    r.lab.instruments[inst].stop()
+    if not r.wait_until(MOTION_TIMEOUT_S, lambda: abs(r.read_signal(f"{inst}.rate", fresh=True)) <= RATE_TOLERANCE_DPS):
+        raise StepAbort(f"{inst}: table did not stop within {MOTION_TIMEOUT_S:g} s")
+    return "done", "stopped"
+
+
+def bench_rate(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    drv = r.lab.instruments[p["instrument"]]
+    if p["rate"] == 0:
+        drv.stop()
+        msg = "stopped"
+    else:
+        actual = drv.set_rate(p["rate"])
+        drv.run()
+        msg = f"{actual:+.4f} deg/s (n = {drv.n_for_rate(p['rate'])})"
+    if p.get("settle"):
+        r.wait_until(p["settle"])
+    return "done", msg
+
+
+# ---- vibration ------------------------------------------------------------------------------------
+def vibrate(r: "Runner", step: Step) -> tuple[str, str]:
+    """Run a shaker profile along an axis. On hardware the shaker has its own controller: the
+    operator runs it and confirms. In a dry-run the simulated world shakes the unit."""
+    from bench.sim.vibration import load_vibration
+
+    p = step.params
+    spec = load_vibration(Path(p["profile"]))
+    duration = spec.duration_s
+    if r.lab.mode == "sim" and r.lab.world is not None:
+        r.lab.world.vibration.add(spec.event(p["axis"], r.clock.now(), seed=len(r.outcomes)))
+        body = (lambda: r.wait_until(duration))
+        if p.get("record"):
+            r.recording(p["record"], p.get("window") or step.name, {"vibration": spec.name, "axis": p["axis"]}, body)
+        else:
+            body()
+        return "done", f"{spec.name} along {p['axis']} for {duration:g} s (simulated shaker)"
+    text = f"Run '{spec.name}' on the shaker along {p['axis']} ({duration:g} s), then confirm."
+    outcome, msg = prompt(r, Step(step.index, "prompt", step.name, {"text": text, "id": step.name}, step.location, step.path))
+    return outcome, msg
+
+
+# ---- checks ---------------------------------------------------------------------------------------
+def check(r: "Runner", step: Step) -> tuple[str, str]:
+    p = step.params
+    value, basis = r.windows.statistic(p["signal"], p["statistic"], p["window"])
+    lo, hi = p.get("min"), p.get("max")
+    problems = []
+    if lo is not None and value < lo:
+        problems.append(f"below {lo:g}")
+    if hi is not None and value > hi:
+        problems.append(f"above {hi:g}")
+    ref_text = ""
+    if p.get("reference"):
+        ref = r.results.get(p["reference"])
+        if ref is None:
+            raise StepAbort(f"check {step.name!r} refers to {p['reference']!r}, which has no result yet")
+        diff = value - ref["value"]
+        ref_text = f", {diff:+.6g} from {p['reference']} ({ref['value']:.6g})"
+        if p.get("max_difference") is not None and abs(diff) > p["max_difference"]:
+            problems.append(f"differs from {p['reference']} by more than {p['max_difference']:g}")
+    outcome = "failed" if problems else "passed"
+    result = {"name": step.name, "signal": p["signal"], "statistic": p["statistic"], "window": p["window"], "value": value,
+              "min": lo, "max": hi, "reference": p.get("reference") or None, "outcome": outcome, "basis": basis}
+    r.results[step.name] = result
+    r.rec.event("check", step.name, f"{outcome}: {p['statistic']} of {p['signal']} = {value:.6g}", t_s=r.clock.now(),
+                step=step.index, data=json.dumps(result).encode())
+    limits = f"[{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}]"
+    return outcome, f"{p['statistic']} {p['signal']} = {value:.6g} {limits}{ref_text} ({basis})" + (f": {'; '.join(problems)}" if problems else "")
+
+
+HANDLERS = {
+    "comment": comment, "prompt": prompt, "power": power, "configure": configure, "wait": wait, "record": record, "bit": bit,
+    "set_temperature": set_temperature, "pump_down": pump_down, "vent": vent, "wait_until_stable": wait_until_stable,
+    "table_rate": table_rate, "table_move": table_move, "table_tilt": table_tilt, "table_stop": table_stop,
+    "bench_rate": bench_rate, "vibrate": vibrate, "check": check,
+}
+"""Step type -> handler. Every action type of the schema has one (tests check it)."""

@@ -1,0 +1,673 @@
+"""``bench watch RUN.h5``: a live view of a run file while the recorder writes it.
+
+Every refresh opens the file with the run-file reader's own opening logic (finished files
+normally, files being written as an HDF5 SWMR reader with bounded metadata retries, every failure a
+located :class:`InputError`), reads what it needs and closes it again, so the writer is never held
+up and a finished run is seen with its final status. Only the tail of each dataset is read: the
+last rows of every stream (the trend window is found by a binary search on ``time`` and read with a
+stride of at most ``MAX_TREND_ROWS`` rows), the last events, and, for the step list, only the events
+added since the previous refresh. A refresh therefore costs the same for a 1 MB and a 10 GB file.
+
+Units: run times in s since the start of the run, wall times in s since the Unix epoch, rates in Hz.
+See ``docs/watch.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+from rich import box
+from rich.console import Console, Group, RenderableType
+from rich.live import Live
+from rich.panel import Panel
+from rich.table import Table
+from rich.text import Text
+
+from bench.errors import EXIT_OK, InputError
+from bench.record.reader import (
+    _EVENT_FIELDS,
+    STALE_AFTER_S,
+    EventRow,
+    _checked_rows,
+    _column_order,
+    _iso,
+    _open_run,
+    _plain,
+    _size_limit,
+    _stream_groups,
+    _unreadable,
+)
+
+TREND_WINDOW_S = 600.0
+"""Run time (s) covered by the trend of each signal: the last 10 minutes."""
+TREND_POINTS = 40
+"""Points (sparkline characters) of a trend; each is the mean of the rows in its time bin."""
+MAX_TREND_ROWS = 4000
+"""Most rows read per column for a trend; a longer window is read with a stride."""
+RATE_WINDOW_S = 10.0
+"""Run time (s) over which a stream's data rate is measured, ending at its last row."""
+MAX_EVENTS = 8
+"""Events listed by default."""
+WAIT_FOR_FILE_S = 30.0
+"""How long (s) :func:`watch` waits for a run file that does not exist, or has not started recording, yet."""
+READ_RETRY_S = 15.0
+"""How long (s) :func:`watch` keeps retrying, showing the last good state, when refreshes fail."""
+FINAL_STATUSES = ("completed", "aborted", "failed")
+HIDDEN_COLUMNS = ("counter", "board_time")
+"""Bookkeeping columns of the sensor board; read but not listed as readings (rows and rate are)."""
+SPARK_CHARS = "▁▂▃▄▅▆▇█"
+
+_EVENT_BLOCK = 16384  # events read per block when scanning for steps
+_BLOB_SPAN = 4 * 1024 * 1024  # blob bytes read at once when the wanted messages lie this close together
+_TAIL_ROWS = 64  # rows read at the end of `time` to find the last complete row
+_STEP_KINDS = (b"run_start", b"step_start", b"step_end")
+_WAIT_REASONS = ("recording had not started", "locked by the process writing it", "the file is empty")
+
+
+# ---- state --------------------------------------------------------------------------------------
+@dataclass
+class StepState:
+    """A step from its ``step_start``/``step_end`` events; ``outcome`` is ``running`` until it ends,
+    then the first word of the ``step_end`` message (passed | failed | aborted | done)."""
+
+    index: int
+    name: str
+    type: str
+    t_start_s: float | None
+    t_end_s: float | None = None
+    outcome: str = "running"
+    detail: str = ""
+
+
+@dataclass
+class SignalState:
+    """One scalar signal: a scalar column, or one component (x, y, z) of a vector column.
+
+    ``value`` is the last row; ``trend`` the mean per time bin over the trend window (NaN for an
+    empty bin), ``trend_min``/``trend_max`` its extremes (NaN if it has no finite value)."""
+
+    column: str
+    component: str
+    units: str
+    value: float
+    integer: bool
+    trend: np.ndarray
+    trend_min: float
+    trend_max: float
+
+    @property
+    def label(self) -> str:
+        return f"{self.column} {self.component}" if self.component else self.column
+
+
+@dataclass
+class StreamState:
+    """One stream: complete ``rows``, the run time of the last row (s), the data rate over the
+    last ``RATE_WINDOW_S`` (Hz), the trend span (s), columns (name → units, ``time`` excluded),
+    the last row of every column, and the signals."""
+
+    key: str
+    rows: int
+    t_last_s: float | None
+    rate_hz: float | None
+    trend_span_s: float
+    columns: dict[str, str]
+    latest: dict[str, np.ndarray]
+    signals: list[SignalState]
+
+
+@dataclass
+class WatchState:
+    """What one read of a run file shows. ``status`` is the file's status, except that a
+    ``running`` file whose heartbeat is ``stale_after_s`` or older reads ``stale`` (its writer has
+    probably crashed). ``run_time_s`` is how far the run has got (s)."""
+
+    path: Path
+    procedure: str
+    status: str
+    status_detail: str
+    mode: str
+    started_utc: str
+    ended_utc: str
+    abort_reason: str
+    run_time_s: float
+    heartbeat_unix: float | None
+    heartbeat_age_s: float | None
+    steps: list[StepState]
+    steps_total: int | None
+    current_step: StepState | None
+    events: list[EventRow]
+    events_total: int
+    streams: list[StreamState]
+    trend_window_s: float
+    warnings: list[str] = field(default_factory=list)
+    read_error: str = ""
+    read_at_unix: float = 0.0
+
+    @property
+    def final(self) -> bool:
+        """True once the writer has closed the file (completed, aborted or failed)."""
+        return self.status in FINAL_STATUSES
+
+    @property
+    def steps_done(self) -> int:
+        """Steps that ended (passed, done, failed or aborted); not running or interrupted ones."""
+        return sum(s.outcome not in ("running", "interrupted") for s in self.steps)
+
+    def steps_with(self, outcome: str) -> int:
+        return sum(s.outcome == outcome for s in self.steps)
+
+    def stream(self, key: str) -> StreamState:
+        for s in self.streams:
+            if s.key == key:
+                return s
+        raise KeyError(f"no stream {key!r} (streams: {', '.join(s.key for s in self.streams) or 'none'})")
+
+    def signal(self, key: str, label: str) -> SignalState:
+        """Signal ``label`` (``"gyro x"``, ``"pressure"``) of stream ``key``."""
+        for sig in self.stream(key).signals:
+            if sig.label == label:
+                return sig
+        raise KeyError(f"stream {key!r} has no signal {label!r}")
+
+
+class StepTracker:
+    """The step list, built from ``/events`` incrementally: each call reads only the events added
+    since the previous one. :func:`watch` keeps one across refreshes; :func:`snapshot` makes a
+    fresh one (reading every event once, in blocks, looking only at step events) if none is given."""
+
+    def __init__(self) -> None:
+        self.scanned = 0  # events consumed so far
+        self.steps: dict[int, StepState] = {}
+        self.total: int | None = None
+
+    def update(self, events: h5py.Dataset, blob: h5py.Dataset, rows: int, blob_len: int) -> None:
+        if rows < self.scanned:  # another file under the same name: start over
+            self.__init__()
+        while self.scanned < rows:
+            stop = min(rows, self.scanned + _EVENT_BLOCK)
+            block = events[self.scanned : stop]
+            kinds = block["kind"]
+            empty = np.flatnonzero(kinds == b"")
+            usable = int(empty[0]) if empty.size else len(block)  # rows the writer has not filled in yet
+            picked = np.flatnonzero(np.isin(kinds[:usable], _STEP_KINDS))
+            ends = block["msg_off"][picked].astype(np.int64) + block["msg_len"][picked].astype(np.int64)
+            short = np.flatnonzero(ends > blob_len)
+            if short.size:  # message not visible yet: stop before it, read it next time
+                usable = int(picked[short[0]])
+                picked = picked[: short[0]]
+            messages = _read_messages(blob, blob_len, [(int(block["msg_off"][i]), int(block["msg_len"][i])) for i in picked])
+            for i, msg in zip(picked, messages):
+                self._apply(block[i], msg)
+            self.scanned += usable
+            if usable < len(block):
+                break
+
+    def _apply(self, row: np.void, message: str) -> None:
+        kind = bytes(row["kind"])
+        idx = int(row["step"])
+        source = bytes(row["source"]).decode("utf-8", errors="replace")
+        t = float(row["t_s"])
+        if kind == b"run_start":
+            m = re.search(r"(\d+) steps?\b", message)
+            if m:
+                self.total = int(m.group(1))
+        elif kind == b"step_start":
+            self.steps.pop(idx, None)  # a repeated index replaces the earlier entry, at the end
+            self.steps[idx] = StepState(idx, message, source, t)
+        else:
+            s = self.steps.get(idx)
+            if s is None:
+                s = self.steps[idx] = StepState(idx, "", source, None)
+            outcome, _, detail = message.partition(":")
+            s.outcome = outcome.strip() or "done"
+            s.detail = detail.strip()
+            s.t_end_s = t
+
+
+# ---- reading ------------------------------------------------------------------------------------
+def snapshot(
+    path: Path,
+    *,
+    stale_after_s: float = STALE_AFTER_S,
+    trend_window_s: float = TREND_WINDOW_S,
+    trend_points: int = TREND_POINTS,
+    max_events: int = MAX_EVENTS,
+    now_unix: float | None = None,
+    tracker: StepTracker | None = None,
+) -> WatchState:
+    """Read the run file at ``path`` once (complete, aborted, crashed or being written).
+
+    ``stale_after_s`` (s of wall time): heartbeat age from which a ``running`` file reads ``stale``.
+    ``trend_window_s`` (s of run time) and ``trend_points``: each signal's trend. ``max_events``:
+    how many of the last events to return. ``tracker`` carries the step list between calls (only
+    new events are read). Raises :class:`InputError` if the file is not a readable bench run file.
+    """
+    path = Path(path)
+    tracker = tracker if tracker is not None else StepTracker()
+    with _open_run(path) as (f, warnings):
+        now = time.time() if now_unix is None else now_unix
+        limit = _size_limit(path)
+        attrs = {k: _plain(v) for k, v in f.attrs.items()}
+        if _checked_rows(f["heartbeat"], limit) != 2:
+            raise ValueError("/heartbeat does not hold 2 values")
+        hb = np.asarray(f["heartbeat"][()], dtype=np.float64).reshape(-1)
+        hb_unix, hb_run = float(hb[0]), float(hb[1])
+
+        events_ds, blob_ds = f["events"], f["events_blob"]
+        if not _EVENT_FIELDS <= set(events_ds.dtype.names or ()):
+            raise ValueError("/events does not have the bench event fields")
+        n_events = _checked_rows(events_ds, limit)
+        blob_len = _checked_rows(blob_ds, limit)
+        tracker.update(events_ds, blob_ds, n_events, blob_len)
+        events = _last_events(events_ds, blob_ds, n_events, blob_len, max_events)
+
+        streams = [
+            _read_stream_tail(key, g, limit, trend_window_s, trend_points) for key, g in _stream_groups(f).items()
+        ]
+
+    status = str(attrs.get("status", ""))
+    age = now - hb_unix if math.isfinite(hb_unix) else None
+    detail = ""
+    if status == "running":
+        if age is None:
+            status, detail = "stale", "no valid heartbeat; the writer has probably crashed"
+        elif age >= stale_after_s:
+            status = "stale"
+            detail = f"no heartbeat for {age:.0f} s (since {_iso(hb_unix)}); the writer has probably crashed"
+        else:
+            detail = f"heartbeat {max(age, 0.0):.1f} s ago"
+    elif status in FINAL_STATUSES:
+        detail = f"ended {attrs.get('ended_utc', '') or '?'}"
+    times = [hb_run] + [e.t_s for e in events] + [s.t_last_s for s in streams if s.t_last_s is not None]
+    times = [t for t in times if math.isfinite(t)]
+    steps = [StepState(**vars(s)) for s in tracker.steps.values()]  # copies: the tracker keeps its own
+    running = [s for s in steps if s.outcome == "running"]
+    current = running[-1] if running else None
+    if status != "running":  # a step left open by a closed or crashed run did not finish
+        for s in running:
+            s.outcome = "interrupted"
+        current = None
+    return WatchState(
+        path=path,
+        procedure=str(attrs.get("procedure_name", "")),
+        status=status,
+        status_detail=detail,
+        mode=str(attrs.get("mode", "")),
+        started_utc=str(attrs.get("started_utc", "")),
+        ended_utc=str(attrs.get("ended_utc", "")),
+        abort_reason=str(attrs.get("abort_reason", "")),
+        run_time_s=max(times) if times else 0.0,
+        heartbeat_unix=hb_unix if math.isfinite(hb_unix) else None,
+        heartbeat_age_s=age,
+        steps=steps,
+        steps_total=tracker.total,
+        current_step=current,
+        events=events,
+        events_total=n_events,
+        streams=streams,
+        trend_window_s=trend_window_s,
+        warnings=list(warnings),
+        read_at_unix=now,
+    )
+
+
+def _read_messages(blob: h5py.Dataset, blob_len: int, ranges: list[tuple[int, int]]) -> list[str]:
+    """Messages ``blob[off:off+n]`` (utf-8), cut to what is visible; nearby ones read in one go."""
+    ranges = [(off, max(0, min(n, blob_len - off))) if off < blob_len else (off, 0) for off, n in ranges]
+    wanted = [(off, n) for off, n in ranges if n > 0]
+    if not wanted:
+        return ["" for _ in ranges]
+    lo = min(off for off, _ in wanted)
+    hi = max(off + n for off, n in wanted)
+    if hi - lo <= _BLOB_SPAN:
+        buf = np.asarray(blob[lo:hi], dtype=np.uint8).tobytes()
+        raw = [buf[off - lo : off - lo + n] if n else b"" for off, n in ranges]
+    else:
+        raw = [np.asarray(blob[off : off + n], dtype=np.uint8).tobytes() if n else b"" for off, n in ranges]
+    return [r.decode("utf-8", errors="replace") for r in raw]
+
+
+def _last_events(events: h5py.Dataset, blob: h5py.Dataset, rows: int, blob_len: int, count: int) -> list[EventRow]:
+    if count <= 0 or rows == 0:
+        return []
+    block = events[max(0, rows - count) : rows]
+    block = block[block["kind"] != b""]  # rows extended but not written yet
+    msgs = _read_messages(blob, blob_len, [(int(r["msg_off"]), int(r["msg_len"])) for r in block])
+    data = [(int(r["data_off"]), int(r["data_len"])) for r in block]
+    raw = [
+        np.asarray(blob[off : min(off + n, blob_len)], dtype=np.uint8).tobytes() if n and off < blob_len else b""
+        for off, n in data
+    ]
+    return [
+        EventRow(
+            t_s=float(r["t_s"]),
+            wall_unix=float(r["wall_unix"]),
+            kind=bytes(r["kind"]).decode("ascii", errors="replace"),
+            source=bytes(r["source"]).decode("utf-8", errors="replace"),
+            step=int(r["step"]),
+            message=m,
+            data=d,
+        )
+        for r, m, d in zip(block, msgs, raw)
+    ]
+
+
+def _search_time(ds: h5py.Dataset, t: float, lo: int, hi: int) -> int:
+    """First row in ``lo..hi`` whose time is >= ``t`` (times ascending), with O(log n) point reads."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if float(ds[mid]) < t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+def _read_stream_tail(key: str, g: h5py.Group, limit: int, window_s: float, points: int) -> StreamState:
+    names = _column_order(g)
+    cols = [n for n in names if n != "time"]
+    units = {n: str(_plain(g[n].attrs.get("units", ""))) for n in cols}
+    n = min(_checked_rows(g[c], limit) for c in names)
+    tds = g["time"]
+    if n > 0:
+        start = max(0, n - _TAIL_ROWS)
+        tail = np.asarray(tds[start:n], dtype=np.float64)
+        nonzero = np.flatnonzero(tail != 0.0)
+        if nonzero.size and tail[-1] == 0.0:  # extended by the writer, data not visible yet
+            n = start + int(nonzero[-1]) + 1
+    if n == 0:
+        return StreamState(key, 0, None, None, 0.0, units, {}, [])
+    t_last = float(tds[n - 1])
+    i0 = _search_time(tds, t_last - window_s, 0, n - 1) if math.isfinite(t_last) else n - 1
+    ir = _search_time(tds, t_last - RATE_WINDOW_S, i0, n - 1) if math.isfinite(t_last) else n - 1
+    t_ir = float(tds[ir])
+    rate = (n - 1 - ir) / (t_last - t_ir) if n - 1 > ir and t_last > t_ir else None
+    step = max(1, math.ceil((n - i0) / MAX_TREND_ROWS))
+    t_w = np.asarray(tds[i0:n:step], dtype=np.float64)
+    t0 = float(t_w[0])
+    span = t_last - t0 if math.isfinite(t_last - t0) else 0.0
+    points = max(1, min(points, len(t_w)))  # a short stream: one point per row, no gaps
+    bins = _bin_index(t_w, t0, t_last, points)
+    latest: dict[str, np.ndarray] = {}
+    signals: list[SignalState] = []
+    for c in cols:
+        ds = g[c]
+        last = np.asarray(ds[n - 1])
+        latest[c] = last
+        if c in HIDDEN_COLUMNS:
+            continue
+        integer = ds.dtype.kind in "biu"
+        vals = np.asarray(ds[i0:n:step], dtype=np.float64).reshape(len(t_w), -1)
+        flat = last.astype(np.float64).reshape(-1)
+        labels = ["x", "y", "z"] if flat.size == 3 and ds.ndim == 2 else ([""] if flat.size == 1 else [f"[{i}]" for i in range(flat.size)])
+        for j, label in enumerate(labels):
+            trend = _bin_means(vals[:, j], bins, points)
+            finite = trend[np.isfinite(trend)]
+            signals.append(
+                SignalState(
+                    c, label, units[c], float(flat[j]), integer, trend,
+                    float(finite.min()) if finite.size else math.nan, float(finite.max()) if finite.size else math.nan,
+                )
+            )
+    return StreamState(key, n, t_last, rate, span, units, latest, signals)
+
+
+def _bin_index(t: np.ndarray, t0: float, t1: float, points: int) -> np.ndarray:
+    """Time bin (0..points-1) of every row; a span of zero puts everything in the last bin."""
+    if not (t1 > t0) or not math.isfinite(t1 - t0):
+        return np.full(t.shape, points - 1, dtype=np.int64)
+    idx = np.floor((t - t0) / (t1 - t0) * points)
+    idx = np.where(np.isfinite(idx), idx, points - 1)
+    return np.clip(idx, 0, points - 1).astype(np.int64)
+
+
+def _bin_means(v: np.ndarray, bins: np.ndarray, points: int) -> np.ndarray:
+    """Mean of the finite values in each bin, NaN for a bin without any; a single point when all rows
+    fall at one instant."""
+    ok = np.isfinite(v)
+    sums = np.bincount(bins[ok], weights=v[ok], minlength=points)
+    counts = np.bincount(bins[ok], minlength=points)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    if points > 0 and bins.size and int(bins.max()) == int(bins.min()):
+        return means[-1:]  # one instant only: one point
+    return means
+
+
+# ---- rendering ----------------------------------------------------------------------------------
+def sparkline(values: np.ndarray | list[float], lo: float | None = None, hi: float | None = None) -> str:
+    """One character ▁..█ per value, scaled from ``lo`` to ``hi`` (default: the finite min and max);
+    a blank for NaN; ``▄`` throughout when all values are equal."""
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    finite = np.isfinite(v)
+    if not finite.any():
+        return " " * v.size
+    lo = float(v[finite].min()) if lo is None else lo
+    hi = float(v[finite].max()) if hi is None else hi
+    top = len(SPARK_CHARS) - 1
+    if not hi > lo:
+        idx = np.full(v.shape, top // 2 + 1 if top > 1 else 0)
+    else:
+        idx = np.clip(np.rint((np.where(finite, v, lo) - lo) / (hi - lo) * top), 0, top).astype(int)
+    return "".join(SPARK_CHARS[i] if ok else " " for i, ok in zip(idx, finite))
+
+
+def format_value(value: float, integer: bool = False, name: str = "") -> str:
+    """A reading as text: integers plain (status words in hex), floats with 5 significant digits."""
+    if not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if "status" in name and float(value).is_integer() and value >= 0:
+        return f"0x{int(value):04x}"
+    if integer:
+        return str(int(value))
+    return f"{value:.5g}"
+
+
+def format_run_time(seconds: float) -> str:
+    """``h:mm:ss`` of a run time (s)."""
+    if not math.isfinite(seconds) or seconds < 0:
+        return "-"
+    s = int(seconds)
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+_STATUS_STYLE = {
+    "running": "bold black on cyan", "completed": "bold black on green", "aborted": "bold white on red",
+    "failed": "bold white on red", "stale": "bold black on yellow",
+}
+_OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan"}
+
+
+def build(state: WatchState) -> RenderableType:
+    """The view of ``state`` as one rich renderable (used by :func:`render` and the live display)."""
+    head = Text()
+    head.append(f" {state.status.upper()} ", style=_STATUS_STYLE.get(state.status, "bold reverse"))
+    head.append(f"  {state.procedure}", style="bold")
+    head.append(f"   run time {format_run_time(state.run_time_s)} ({state.run_time_s:.1f} s)")
+    if state.mode:
+        head.append(f"   mode {state.mode}", style="dim")
+    detail = Text(state.status_detail, style="red" if state.status == "stale" else "dim")
+    if state.abort_reason:
+        detail.append(f"   abort reason: {state.abort_reason}", style="red")
+    parts: list[RenderableType] = [head, detail, _step_line(state)]
+    for w in state.warnings:
+        parts.append(Text(f"warning: {w}", style="yellow"))
+    if state.read_error:
+        parts.append(Text(f"refresh failed, showing the last good read: {state.read_error}", style="yellow"))
+    parts.append(_readings_table(state))
+    parts.append(_events_table(state))
+    title = f"bench watch [dim]{state.path.name}[/]"
+    return Panel(Group(*parts), title=title, title_align="left", box=box.ROUNDED, padding=(0, 1))
+
+
+def render(state: WatchState, console: Console) -> None:
+    """Print the view of ``state``: status and run time, current step, key readings with trends, last events."""
+    console.print(build(state))
+
+
+def _step_line(state: WatchState) -> Text:
+    t = Text()
+    total = f"/{state.steps_total}" if state.steps_total is not None else ""
+    cur = state.current_step
+    if cur is not None:
+        t.append(f"step {cur.index + 1}{total}  ", style="bold")
+        t.append(cur.name or "?", style="bold cyan")
+        t.append(f" ({cur.type})" if cur.type else "")
+        if cur.t_start_s is not None:
+            t.append(f"  started at {cur.t_start_s:.1f} s, running {max(state.run_time_s - cur.t_start_s, 0.0):.1f} s")
+    elif state.steps:
+        last = state.steps[-1]
+        t.append("last step  " if state.status != "running" else "between steps; last  ", style="bold")
+        t.append(f"{last.index + 1}{total} {last.name} ")
+        t.append(last.outcome, style=_OUTCOME_STYLE.get(last.outcome, ""))
+        if last.detail:
+            t.append(f": {last.detail}")
+    else:
+        t.append("no step started yet", style="dim")
+    counts = [f"{state.steps_done}{total} finished"]
+    for outcome in ("failed", "aborted", "interrupted"):
+        k = state.steps_with(outcome)
+        if k:
+            counts.append(f"{k} {outcome}")
+    t.append("   steps: " + ", ".join(counts), style="red" if state.steps_with("failed") or state.steps_with("aborted") else "")
+    return t
+
+
+def _readings_table(state: WatchState) -> Table:
+    window = f"trend, last {state.trend_window_s / 60:g} min" if state.trend_window_s >= 60 else f"trend, last {state.trend_window_s:g} s"
+    t = Table(box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False, expand=False)
+    t.add_column("reading", no_wrap=True, min_width=14)
+    t.add_column("value", justify="right", no_wrap=True, min_width=10)
+    t.add_column("units", no_wrap=True)
+    t.add_column(window, no_wrap=True, min_width=TREND_POINTS)
+    t.add_column("min", justify="right", no_wrap=True)
+    t.add_column("max", justify="right", no_wrap=True)
+    if not state.streams:
+        t.add_row(Text("no streams", style="dim"), "", "", "", "", "")
+    for i, s in enumerate(state.streams):
+        if i:
+            t.add_section()
+        rows = Text(f"{s.rows:,} rows", style="dim")
+        rate = Text(f"{s.rate_hz:.4g} Hz" if s.rate_hz is not None else "", style="dim")
+        if s.rows == 0 or s.t_last_s is None:
+            info = "no rows yet"
+        else:
+            lag = state.run_time_s - s.t_last_s
+            info = f"last row {s.t_last_s:.1f} s" + (f", {lag:.1f} s behind" if lag >= 0.05 else "")
+            if s.trend_span_s < 0.95 * state.trend_window_s:
+                info += f", trend {s.trend_span_s:.0f} s"
+        t.add_row(Text(s.key, style="bold"), rows, rate, Text(info, style="dim"), "", "")
+        prev = ""
+        for sig in s.signals:
+            label = sig.label if sig.column != prev else f"{' ' * len(sig.column)} {sig.component}"
+            prev = sig.column
+            name = sig.column
+            t.add_row(
+                Text(label),
+                format_value(sig.value, sig.integer, name),
+                Text(sig.units if sig.units != "1" else "", style="dim"),
+                Text(sparkline(sig.trend), style="cyan"),
+                format_value(sig.trend_min, sig.integer, name) if math.isfinite(sig.trend_min) else "",
+                format_value(sig.trend_max, sig.integer, name) if math.isfinite(sig.trend_max) else "",
+            )
+    return t
+
+
+def _events_table(state: WatchState) -> Table:
+    shown = len(state.events)
+    t = Table(title=f"last {shown} of {state.events_total} events", title_justify="left", box=box.SIMPLE_HEAD,
+              padding=(0, 1), pad_edge=False, show_edge=False)
+    t.add_column("t s", justify="right", no_wrap=True)
+    t.add_column("kind", no_wrap=True)
+    t.add_column("source", no_wrap=True, max_width=16, overflow="ellipsis")
+    t.add_column("step", justify="right", no_wrap=True)
+    t.add_column("message", no_wrap=True, overflow="ellipsis", ratio=1)
+    for e in state.events:
+        style = "red" if e.kind in ("error", "fault", "abort") else ("bold" if e.kind in ("step_start", "step_end") else "")
+        t.add_row(f"{e.t_s:.1f}", Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "", Text(e.message))
+    return t
+
+
+# ---- watching -----------------------------------------------------------------------------------
+def watch(
+    path: Path,
+    console: Console,
+    *,
+    interval_s: float = 1.0,
+    once: bool = False,
+    max_updates: int | None = None,
+    wait_s: float | None = None,
+    stale_after_s: float = STALE_AFTER_S,
+    max_events: int = MAX_EVENTS,
+) -> int:
+    """Show the run file at ``path``: once (``once=True``), or refreshed every ``interval_s`` (s)
+    with a live display until the run ends (completed, aborted or failed: the final state stays on
+    screen) or Ctrl-C. ``max_updates`` stops after that many reads (tests). A file that does not
+    exist, or has not started recording, is waited for up to ``wait_s`` s (default 30 s when
+    watching, 0 with ``once``). Returns ``EXIT_OK``; raises :class:`InputError` (one line) for a file
+    that is not a readable bench run file, or when refreshes keep failing for ``READ_RETRY_S``.
+    """
+    path = Path(path)
+    if not interval_s > 0:
+        raise InputError(f"the refresh interval must be > 0 s, got {interval_s!r}", None, "--interval")
+    wait = (0.0 if once else WAIT_FOR_FILE_S) if wait_s is None else float(wait_s)
+    tracker = StepTracker()
+    read = lambda: snapshot(path, stale_after_s=stale_after_s, max_events=max_events, tracker=tracker)  # noqa: E731
+    try:
+        state = _first_read(path, console, wait, read)
+        if once or state.final or (max_updates is not None and max_updates <= 1):
+            render(state, console)
+            return EXIT_OK
+        updates = 1
+        failing_since: float | None = None
+        with Live(build(state), console=console, auto_refresh=False, transient=False) as live:
+            next_at = time.monotonic() + interval_s
+            while max_updates is None or updates < max_updates:
+                time.sleep(max(0.0, next_at - time.monotonic()))
+                next_at = max(next_at + interval_s, time.monotonic())
+                try:
+                    state = read()
+                    failing_since = None
+                except InputError as exc:
+                    now = time.monotonic()
+                    failing_since = now if failing_since is None else failing_since
+                    if now - failing_since >= READ_RETRY_S:
+                        raise
+                    state.read_error = exc.one_line()
+                updates += 1
+                live.update(build(state), refresh=True)
+                if state.final:
+                    break
+    except KeyboardInterrupt:
+        return EXIT_OK
+    return EXIT_OK
+
+
+def _first_read(path: Path, console: Console, wait_s: float, read) -> WatchState:
+    """First snapshot; waits up to ``wait_s`` for a file that does not exist or is still being set up."""
+    deadline = time.monotonic() + wait_s
+    told = False
+    while True:
+        if path.exists():
+            try:
+                return read()
+            except InputError as exc:
+                if not any(r in exc.message for r in _WAIT_REASONS) or time.monotonic() >= deadline:
+                    raise
+                reason = "recording to start"
+        elif time.monotonic() >= deadline:
+            waited = f" (waited {wait_s:g} s for it to appear)" if wait_s > 0 else ""
+            raise _unreadable(path, f"no such file{waited}")
+        else:
+            reason = "it to appear"
+        if not told:
+            console.print(f"waiting up to {wait_s:g} s for {path}: waiting for {reason} …", style="dim", markup=False)
+            told = True
+        time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))
