@@ -40,6 +40,23 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--realtime", action="store_true", help="with --sim: run at wall-clock pace")
     r.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run files go (default: runs/)")
     r.add_argument("--operator", default=None, help="operator name recorded in the run file (default: login name)")
+    r.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help="override a procedure parameter, e.g. -p cold=-20degC")
+    r.add_argument("--answers", type=Path, default=None, help="YAML file answering the procedure's operator prompts (id: yes)")
+
+    v = sub.add_parser("validate", help="check a procedure (and its limits against a lab config) without running it")
+    v.add_argument("procedure", type=Path)
+    v.add_argument("--config", type=Path, default=None, help="lab config: instrument names, drivers and this lab's limits")
+    v.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help="override a procedure parameter")
+
+    pl = sub.add_parser("plan", help="the expanded step list of a procedure with estimated durations")
+    pl.add_argument("procedure", type=Path)
+    pl.add_argument("--config", type=Path, default=None, help="lab config to validate against")
+    pl.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help="override a procedure parameter")
+
+    w = sub.add_parser("watch", help="live view of a run in progress (reads the run file)")
+    w.add_argument("run_file", type=Path)
+    w.add_argument("--interval", default="1 s", help="refresh interval (default '1 s')")
+    w.add_argument("--once", action="store_true", help="print one snapshot and exit")
 
     i = sub.add_parser("inspect", help="summarise a run file (also while it is being written)")
     i.add_argument("run_file", type=Path)
@@ -76,6 +93,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "run":
             return cmd_run(args, console)
+        if args.command in ("validate", "plan"):
+            from bench.cli_procedure import cmd_plan, cmd_validate
+
+            return (cmd_validate if args.command == "validate" else cmd_plan)(args, console)
+        if args.command == "watch":
+            return cmd_watch(args, console)
         if args.command == "inspect":
             return cmd_inspect(args, console)
         if args.command == "calibrate-bench":
@@ -114,25 +137,23 @@ def main(argv: list[str] | None = None) -> int:
 
 # ---- run --------------------------------------------------------------------------------------
 def cmd_run(args: argparse.Namespace, console: Console) -> int:
-    from bench.config import load_config
-    from bench.errors import Location
+    from bench.cli_procedure import load_checked, parse_params
     from bench.lab import open_lab
-    from bench.procedure import load_procedure
     from bench.record import RunRecorder, check_destination
+    from bench.runner.operator import Operator
     from bench.runner import Runner
     from bench.runner.progress import RichProgress
 
-    procedure = load_procedure(args.procedure)
-    config = load_config(args.config)
+    procedure, config = load_checked(args.procedure, args.config, parse_params(args.param))
     args.sim = args.sim or config.mode == "sim"
     if args.realtime and not args.sim:
         raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
-    missing = [n for n in procedure.instruments if n not in config.instruments]
-    if missing:
-        raise InputErrors([
-            InputError(f"instrument {n!r} is not in config {args.config} (has: {', '.join(config.instruments)})", procedure.instrument_locations.get(n, Location(procedure.path)), "instruments")
-            for n in missing
-        ])
+    operator = Operator.from_file(args.answers, Operator.terminal()) if args.answers else Operator(None, Operator.terminal())
+    unanswerable = [s for s in procedure.steps if (s.type == "prompt" or (s.type == "vibrate" and not args.sim))
+                    and not operator.can_answer(s.params.get("id") or s.name, args.sim)]
+    if unanswerable:
+        raise InputErrors([InputError(f"prompt {s.params.get('id') or s.name!r} needs an operator: run on a terminal or give --answers FILE",
+                                      s.location, "prompt") for s in unanswerable])
     if args.sim:
         no_sim = [n for n in procedure.instruments if config.instruments[n].sim is None]
         if no_sim:
@@ -167,8 +188,13 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
         recorder.close("aborted", f"instruments could not be opened: {exc}")
         raise
     progress = RichProgress(console)
-    runner = Runner(procedure, lab, recorder, progress)
+    runner = Runner(procedure, lab, recorder, progress, operator)
     state = {"signals": 0}
+
+    def on_pause(signum: int, _frame) -> None:
+        runner.toggle_pause()
+        console.print(f"[bold yellow]{'pause' if runner.paused else 'resume'} requested ({signal.Signals(signum).name}); "
+                      f"{'send it again to resume' if runner.paused else 'continuing'}[/]")
 
     def on_signal(signum: int, _frame) -> None:
         state["signals"] += 1
@@ -180,10 +206,14 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
             console.print(f"[yellow]{name} again: the safe-state sequence is running and will not be skipped[/]")
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    pause_signals = [getattr(signal, n) for n in ("SIGUSR1", "SIGTSTP") if hasattr(signal, n)]
+    old_pause = {s: signal.signal(s, on_pause) for s in pause_signals}
     try:
         result = runner.run()
     finally:
         lab.close()
+        for s, h in old_pause.items():
+            signal.signal(s, h)
         for s, h in old.items():
             # after an operator stop the process is on its way out: further signals are ignored, even
             # during interpreter shutdown (which would otherwise die of them)
@@ -209,6 +239,15 @@ def _print_summary(console: Console, result, path: Path, virtual: bool) -> None:
     for name, rows in result.rows.items():
         st = result.stream_stats.get(name, {})
         console.print(f"stream {name}: {rows} rows; link: {st.get('crc_errors', 0)} CRC errors, {st.get('dropped_frames', 0)} dropped frames, {st.get('garbage_bytes', 0)} garbage bytes")
+    if result.checks:
+        ct = Table(title="Checks")
+        for col in ("check", "signal", "statistic", "window", "value", "limits", "outcome"):
+            ct.add_column(col)
+        for c in result.checks:
+            lim = f"[{'' if c['min'] is None else format(c['min'], 'g')}, {'' if c['max'] is None else format(c['max'], 'g')}]"
+            colour = "green" if c["outcome"] == "passed" else "red"
+            ct.add_row(c["name"], c["signal"], c["statistic"], c["window"], f"{c['value']:.6g}", lim, f"[{colour}]{c['outcome']}[/]")
+        console.print(ct)
     speed = f", {result.run_time_s / max(result.wall_time_s, 1e-9):.0f}x real time" if virtual else ""
     console.print(f"run time {result.run_time_s:.1f} s in {result.wall_time_s:.2f} s wall{speed}")
     console.print(f"run file: {path}")
@@ -218,6 +257,17 @@ def _print_summary(console: Console, result, path: Path, virtual: bool) -> None:
         console.print(f"[bold red]FAILED[/]: {len(result.failed_steps)} step(s) failed: {', '.join(o.name for o in result.failed_steps)}")
     else:
         console.print("[bold green]COMPLETED[/]: all steps done, all checks passed")
+
+
+# ---- watch ------------------------------------------------------------------------------------
+def cmd_watch(args: argparse.Namespace, console: Console) -> int:
+    from bench.units import to_units
+    from bench.watch import watch
+
+    interval = to_units(args.interval, "s", None, "--interval")
+    if not 0.05 <= interval <= 60:
+        raise InputError("the refresh interval must be between 0.05 s and 60 s", None, "--interval")
+    return watch(args.run_file, console, interval_s=interval, once=args.once)
 
 
 # ---- inspect ----------------------------------------------------------------------------------

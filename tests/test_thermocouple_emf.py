@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -115,12 +117,13 @@ def test_ideal_logger_reads_mount_air_and_die(bench):
 
 def test_realistic_logger_accuracy_and_noise(bench):
     world, clock, make = bench
-    dev, tc = make(spec=KEYSIGHT_34970A, seed=3)
+    # exact EMF -> temperature conversion, so the test can recover the quantised voltages
+    spec = dataclasses.replace(KEYSIGHT_34970A, exact_conversion=True)
+    dev, tc = make(spec=spec, seed=3)
     mount = heat(world, clock)
     assert 55.0 < mount < 61.0
     tc.configure([101, 102], "K")
     readings = np.array([[tc.read().temps_c[c] for c in (101, 102)] for _ in range(300)])
-    spec = KEYSIGHT_34970A
     # within the stated thermocouple accuracy, reference-junction error included
     assert np.all(np.abs(readings - mount) <= spec.tc_accuracy_c)
     # the reference junction is off by its fixed offset, within its stated accuracy
@@ -230,3 +233,17 @@ def test_fault_noisy(bench):
 
 def test_ideal_is_default():
     assert ThermocoupleReaderSim.__init__.__kwdefaults__["spec"] is None and IDEAL.noise_uv_rms == 0.0
+
+
+def test_firmware_conversion_stays_within_the_nist_inverse_error(bench):
+    """The 34970A preset converts with the NIST inverse polynomials, as firmware does: readings
+    differ from the exact conversion by at most the polynomial's stated error."""
+    world, clock, make = bench
+    mount = heat(world, clock)
+    _, exact = make(spec=dataclasses.replace(KEYSIGHT_34970A, noise_uv_rms=0.0, resolution_uv=0.0, exact_conversion=True), seed=3)
+    _, firmware = make(spec=dataclasses.replace(KEYSIGHT_34970A, noise_uv_rms=0.0, resolution_uv=0.0), seed=3)
+    for tc in (exact, firmware):
+        tc.configure([101], "K")
+    a, b = exact.read().temps_c[101], firmware.read().temps_c[101]
+    assert 0 < abs(a - b) <= INVERSE_ERROR_C["K"]
+    assert abs(a - mount) < 1.0

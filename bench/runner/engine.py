@@ -336,7 +336,7 @@ class Runner:
         self._last_monitor[name] = values
         if self.windows.any_open:
             for col, v in values.items():
-                self.windows.feed(f"{name}.{col}", np.array([t]), np.array([v], dtype=float))
+                self.windows.feed_one(f"{name}.{col}", t, float(v))
         self._check_interlocks(name)
 
     def _check_interlocks(self, inst: str) -> None:

@@ -30,6 +30,22 @@ class RunningStats:
     sty: float = 0.0
     t0: float | None = None
 
+    def add_one(self, t: float, y: float) -> None:
+        """One sample (plain floats: polled readings arrive one at a time)."""
+        if not math.isfinite(y):
+            return
+        if self.t0 is None:
+            self.t0 = t
+        tt = t - self.t0
+        self.n += 1
+        self.s += y
+        self.ss += y * y
+        self.lo = min(self.lo, y)
+        self.hi = max(self.hi, y)
+        self.st += tt
+        self.stt += tt * tt
+        self.sty += tt * y
+
     def add(self, t: np.ndarray, y: np.ndarray) -> None:
         ok = np.isfinite(y)
         if not np.any(ok):
@@ -115,6 +131,14 @@ class Windows:
         """Samples of ``signal`` (run times ``t`` s) into every open window."""
         for w in self._open:
             w.stats.setdefault(signal, RunningStats()).add(np.asarray(t, dtype=float), np.asarray(y, dtype=float))
+
+    def feed_one(self, signal: str, t: float, y: float) -> None:
+        """One sample of ``signal`` at run time ``t`` (s) into every open window."""
+        for w in self._open:
+            st = w.stats.get(signal)
+            if st is None:
+                st = w.stats[signal] = RunningStats()
+            st.add_one(t, y)
 
     def matching(self, pattern: str) -> list[Window]:
         """Closed or open windows whose name matches ``pattern`` (``*`` wildcards), in start order."""

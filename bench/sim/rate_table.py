@@ -43,8 +43,10 @@ from drivers.rate_table import (
     QUICK_STOP_ACTIVE,
     READY_TO_SWITCH_ON,
     STATES,
+    SYNC_COB_ID,
     SWITCH_ON_DISABLED,
     SWITCHED_ON,
+    TPDO_MAP,
     Cw,
     Obj,
     Sw,
@@ -118,6 +120,12 @@ class AxisDrive:
         self.node.add_write_callback(self._on_write)
 
     # ---- object access ----------------------------------------------------------------------
+    def pdo_value(self, key):
+        """Value of a PDO-mapped object now (the same reader an SDO upload uses)."""
+        with self._lock:
+            reader = self._readers.get(self._index(key))
+            return reader() if reader is not None else self.value(key)
+
     def _index(self, key) -> int:
         return od_var(self.od, key).index
 
@@ -385,7 +393,20 @@ class RateTableSim:
         for drive in self.drives.values():
             net.add_node(drive.node)
         net.connect()
+        net.subscribe(SYNC_COB_ID, self._on_sync)
         self.network = net
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """SYNC: every drive that answers sends its synchronous transmit PDOs (TPDO_MAP)."""
+        net = self.network
+        if net is None:
+            return
+        for drive in self.drives.values():
+            if drive.axis in self._silent:
+                continue
+            for base, keys in TPDO_MAP.values():
+                payload = b"".join(od_var(drive.od, key).encode_raw(drive.pdo_value(key)) for key in keys)
+                net.send_message(base + drive.node.id, payload)
 
     def close(self) -> None:
         """Detach from the bus (and shut it down if the sim opened it). Safe to call twice."""

@@ -25,6 +25,8 @@ exact=True)`` returns ``t`` to ~1e-9 °C (the inverse of the reference function 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 TC_TYPES = ("K", "T")
@@ -109,6 +111,35 @@ def _piecewise(x: np.ndarray, pieces, evaluate) -> np.ndarray:
     return out
 
 
+def _piece(x: float, pieces):
+    """The piece of ``pieces`` that owns ``x`` (same rule as :func:`_piecewise`)."""
+    for i, piece in enumerate(pieces):
+        lo, hi, _ = piece
+        if (i == 0 or x > lo) and (i == len(pieces) - 1 or x <= hi):
+            return piece
+    return pieces[-1]
+
+
+def _horner(x: float, coeffs) -> float:
+    acc = 0.0
+    for c in reversed(coeffs):
+        acc = acc * x + c
+    return acc
+
+
+def _temp_to_emf_scalar(t: float, kind: str) -> float:
+    """Scalar fast path of :func:`temp_to_emf_mv` (plain floats: a simulator calls it per reading)."""
+    lo, hi = TEMP_RANGE_C[kind]
+    if not lo <= t <= hi:
+        raise ValueError(f"type {kind} reference function covers {lo:g}..{hi:g} °C, got {t!r}")
+    plo, _, coeffs = _piece(t, _FORWARD[kind])
+    e = _horner(t, coeffs)
+    if kind == "K" and plo == 0.0:
+        a0, a1, a2 = _K_EXP
+        e += a0 * math.exp(a1 * (t - a2) ** 2)
+    return e
+
+
 def temp_to_emf_mv(temp_c, tc_type: str = "K"):
     """Thermo-EMF (mV) of a ``tc_type`` thermocouple at ``temp_c`` (°C) against a 0 °C reference.
 
@@ -116,6 +147,8 @@ def temp_to_emf_mv(temp_c, tc_type: str = "K"):
     range (K: −270..1372 °C, T: −270..400 °C).
     """
     kind = _check_type(tc_type)
+    if isinstance(temp_c, (float, int)):
+        return _temp_to_emf_scalar(float(temp_c), kind)
     t = np.asarray(temp_c, dtype=float)
     lo, hi = TEMP_RANGE_C[kind]
     if not np.all((t >= lo) & (t <= hi)):
@@ -161,8 +194,13 @@ def emf_to_temp_c(emf_mv, tc_type: str = "K", exact: bool = False):
     polynomials' range (K: −5.891..54.886 mV, T: −5.603..20.872 mV).
     """
     kind = _check_type(tc_type)
-    e = np.asarray(emf_mv, dtype=float)
     lo, hi = EMF_RANGE_MV[kind]
+    if isinstance(emf_mv, (float, int)) and not exact:
+        x = float(emf_mv)
+        if not lo - _EMF_ROUNDING_MV <= x <= hi + _EMF_ROUNDING_MV:
+            raise ValueError(f"type {kind} inverse function covers {lo:g}..{hi:g} mV, got {x!r}")
+        return _horner(x, _piece(x, _INVERSE[kind])[2])
+    e = np.asarray(emf_mv, dtype=float)
     ok = (e >= lo - _EMF_ROUNDING_MV) & (e <= hi + _EMF_ROUNDING_MV)
     if not np.all(ok):
         raise ValueError(f"type {kind} inverse function covers {lo:g}..{hi:g} mV, got {e[~ok].ravel()[:3]}")
