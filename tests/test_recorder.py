@@ -674,3 +674,21 @@ def _check_corrupted_copy(source: Path, edits: list[tuple[float, int]]) -> None:
                 read_stream(p, x.key)
             except InputError:
                 pass
+
+
+def test_close_waits_for_a_reader_holding_the_file(tmp_path: Path) -> None:
+    """`bench watch` reading at the moment a run ends must not make the run fail to finalise."""
+    rec = make_recorder(tmp_path)
+    acs = rec.add_stream("acs_board", ACS, rate_hz=100.0)
+    rec.start()
+    t, cols = acs_batch(0.0, 100, 100.0)
+    rec.append(acs, t, **cols)
+    rec.flush()
+    reader = h5py.File(rec.path, "r", libver="latest", swmr=True)  # holds HDF5's shared file lock
+    releaser = threading.Timer(0.3, reader.close)
+    releaser.start()
+    t0 = time.monotonic()
+    rec.close("completed")
+    releaser.join()
+    assert time.monotonic() - t0 >= 0.25  # it really had to wait for the reader
+    assert read_run_summary(rec.path).status == "completed"

@@ -547,7 +547,7 @@ class RunRecorder:
         if self._failure and not abort_reason:
             abort_reason = f"writing the run file failed: {self._failure}"
         try:
-            with h5py.File(self.path, "r+", libver="latest") as f:
+            with _open_for_status(self.path) as f:
                 total = 0
                 for st in self._streams.values():
                     g = f["streams"][st.key]
@@ -722,6 +722,23 @@ class RunRecorder:
 
 
 # ---- helpers --------------------------------------------------------------------------------
+LOCK_RETRY_S = 5.0
+"""How long closing waits for readers (``bench watch``, ``bench inspect``) to let go of the file (s)."""
+
+
+def _open_for_status(path: Path) -> h5py.File:
+    """Reopen a released run file read-write. A reader holds a shared HDF5 file lock for the
+    milliseconds of a read; retry while it does, up to :data:`LOCK_RETRY_S`."""
+    deadline = time.monotonic() + LOCK_RETRY_S
+    while True:
+        try:
+            return h5py.File(path, "r+", libver="latest")
+        except OSError as exc:
+            if "unable to lock file" not in str(exc) or time.monotonic() >= deadline:
+                raise
+            time.sleep(0.02)
+
+
 def _chunk_bytes(ds: h5py.Dataset) -> int:
     """Size (bytes) of one chunk of ``ds``."""
     return int(np.prod(ds.chunks, dtype=np.int64)) * ds.dtype.itemsize
