@@ -55,8 +55,8 @@ def fmt_duration(seconds: float) -> str:
 def cmd_validate(args: argparse.Namespace, console: Console) -> int:
     procedure, config = load_checked(args.procedure, args.config, parse_params(args.param))
     against = f"config {args.config}" if config is not None else "the standard instrument names (no --config)"
-    console.print(f"{procedure.path}: valid ({len(procedure.steps)} steps after expansion, about "
-                  f"{fmt_duration(procedure.estimated_duration_s())} of procedure time; checked against {against})")
+    print(f"{procedure.path}: valid ({len(procedure.steps)} steps after expansion, about "
+          f"{fmt_duration(procedure.estimated_duration_s())} of procedure time; checked against {against})")
     return EXIT_OK
 
 
