@@ -9,7 +9,6 @@ import time
 from pathlib import Path
 
 import h5py
-import numpy as np
 import pytest
 
 from bench.config import load_config

@@ -4,6 +4,7 @@ and mutated procedure text only ever raises located input errors."""
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -23,13 +24,8 @@ SIM_CONFIG = ROOT / "configs" / "sim.yaml"
 ANSWERS = PROCEDURES / "answers" / "ci.yaml"
 LIBRARY = sorted(PROCEDURES.glob("*.yaml"))
 
-SIM_TURNS_ABOUT_Z = (
-    "the simulated unit only ever turns about its z axis (bench.sim.world: table and stage rotate "
-    "the unit frame about z); the remount prompt cannot change that, so the x and y scale-factor "
-    "checks (limit +/-5 %) see no rate and fail by design on the simulators"
-)
 
-# CI-length parameters (scalars only: a list given with -p does not load today).
+# CI-length parameters.
 CI_PARAMS: dict[str, list[str]] = {
     "startup_profile": [],
     "functional_test": ["dwell=2s", "settle=0s"],
@@ -47,10 +43,9 @@ CI_PARAMS: dict[str, list[str]] = {
     "allan_static": ["warmup=1min", "duration=5min"],
 }
 
-# Checks expected to fail on the simulators, and why (exit code 1, run COMPLETED otherwise).
-_XY_SF = {"rate_transfer": {"sf_x", "sf_y"}}
-_XY_SF["vibe_functional"] = {f"{p}sf_{a}" for p in ("pre_", "post_z_", "post_y_", "post_x_") for a in ("x", "y")}
-EXPECTED_FAILURES: dict[str, set[str]] = _XY_SF
+# Checks expected to fail on the simulators, and why (none: the `mount` step turns the simulated
+# unit so each axis in turn is on the table axis, and every check of the library passes).
+EXPECTED_FAILURES: dict[str, set[str]] = {}
 
 LONG = ["thermal_ramp_ambient", "thermal_ramp_vacuum", "hysteresis", "startup_temperature_repeatability",
         "rate_transfer", "vibe_functional", "estcube_gyro_thermal", "moving_average_sweep", "allan_static"]
@@ -61,7 +56,8 @@ def _run(name: str, params: list[str], runs_dir: Path, timeout: float) -> subpro
             "--runs-dir", str(runs_dir), "--answers", str(ANSWERS)]
     for p in params:
         args += ["-p", p]
-    return subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    env = dict(os.environ, COLUMNS="1000")  # keep the summary line (failed check names) on one line
+    return subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def _assert_outcome(name: str, proc: subprocess.CompletedProcess) -> None:
@@ -73,12 +69,12 @@ def _assert_outcome(name: str, proc: subprocess.CompletedProcess) -> None:
         assert proc.returncode == 0, f"exit {proc.returncode}: {final}\n{proc.stderr[-2000:]}"
         assert final.startswith("COMPLETED"), final
         return
-    # Exit 1: the run completed, only the checks the simulator cannot pass failed (SIM_TURNS_ABOUT_Z).
+    # Exit 1: the run completed, only the expected checks failed.
     assert proc.returncode == 1, f"exit {proc.returncode}: {final}\n{proc.stderr[-2000:]}"
     m = re.match(r"FAILED: \d+ step\(s\) failed: (.*)$", final)
     assert m, final
     failed = {s.strip() for s in m.group(1).split(",")}
-    assert failed == expected, f"{SIM_TURNS_ABOUT_Z}; unexpected set of failed checks: {sorted(failed)}"
+    assert failed == expected, f"unexpected set of failed checks: {sorted(failed)}"
 
 
 def test_every_library_procedure_has_ci_parameters():

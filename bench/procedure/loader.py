@@ -177,12 +177,13 @@ def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None,
             errors.append(InputError(f"no parameter {key!r} in {src.path} (parameters: {known})", None, f"-p {key}"))
     env: dict[str, Node] = {}
     for key, node in doc.parameters.items():
-        env[key] = Node(_override_value(overrides[key]), Location(f"-p {key}")) if key in overrides else node
+        env[key] = _as_node(_override_value(overrides[key]), Location(f"-p {key}")) if key in overrides else node
     exp = _Expander(doc, kinds, errors)
     if doc.steps_node is not None and isinstance(doc.steps_node.value, list):
         exp.expand(doc.steps_node.value, env, doc, prefix="", context="", depth=0)
     limits = _limits(doc.limits_node, kinds, errors)
-    interlocks = _interlocks(doc.interlocks_node, doc.instruments, kinds, errors)
+    inode = exp._subst(doc.interlocks_node, env) if doc.interlocks_node is not None else None
+    interlocks = _interlocks(inode, doc.instruments, kinds, errors)
     if not errors:
         errors += check_step_limits(exp.steps, kinds, config_limits, limits)
     if errors:
@@ -192,13 +193,22 @@ def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None,
                      doc.inst_locs, plain_params, limits, interlocks, exp.sources)
 
 
+def _as_node(value: Any, loc: Location) -> Node:
+    """A plain value (from ``-p``) as a Node tree located at the option."""
+    if isinstance(value, list):
+        return Node([_as_node(v, loc) for v in value], loc)
+    if isinstance(value, dict):
+        return Node({str(k): _as_node(v, loc) for k, v in value.items()}, loc, {str(k): loc for k in value})
+    return Node(value, loc)
+
+
 def _override_value(text: str) -> Any:
     """A ``-p NAME=VALUE`` value: YAML scalar rules (numbers, booleans, lists), else the text."""
     try:
         value = yaml.safe_load(text)
     except yaml.YAMLError:
         return text
-    return value if isinstance(value, (int, float, str, bool, list)) else text
+    return value if isinstance(value, (int, float, str, bool, list, dict)) else text
 
 
 # ---- expansion ----------------------------------------------------------------------------------

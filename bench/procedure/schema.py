@@ -146,6 +146,14 @@ STEP_TYPES: dict[str, StepSpec] = {
          "settle": FieldSpec("quantity", "s", required=False, default=0.0, minimum=0.0, doc="wait this long afterwards")},
         "Turn the stepper bench at a rate (converted to its speed parameter n with the bench calibration).",
     ),
+    "mount": StepSpec(
+        {
+            "up": FieldSpec("choice", choices=("x", "y", "z", "-x", "-y", "-z"), doc="sensor axis along the table's rotation axis (platter normal)"),
+            "id": FieldSpec("str", required=False, default="", doc="prompt id for the answers file (default mount_UP)"),
+        },
+        "The unit is (re)mounted with a given axis on the rotation axis: the operator does it and confirms; a dry-run turns the simulated unit.",
+        "up",
+    ),
     "vibrate": StepSpec(
         {
             "profile": FieldSpec("vibration", doc="vibration file (bench-vibration/1), relative to the procedure, e.g. ../configs/vibration/gevs_workmanship.yaml"),

@@ -226,6 +226,19 @@ def bench_rate(r: "Runner", step: Step) -> tuple[str, str]:
     return "done", msg
 
 
+def mount(r: "Runner", step: Step) -> tuple[str, str]:
+    """Remount the unit with axis ``up`` on the table axis: the operator confirms; a dry-run also
+    turns the simulated unit on its platter."""
+    up = step.params["up"]
+    key = step.params.get("id") or f"mount_{up.replace('-', 'minus_')}"
+    text = f"Mount the unit with its {up} axis along the table's rotation axis (platter normal), then confirm."
+    outcome, msg = prompt(r, Step(step.index, "prompt", step.name, {"text": text, "id": key}, step.location, step.path))
+    if r.lab.mode == "sim" and r.lab.world is not None:
+        r.lab.world.set_mount(up)
+        msg += f"; simulated unit mounted {up} up"
+    return outcome, msg
+
+
 # ---- vibration ------------------------------------------------------------------------------------
 def vibrate(r: "Runner", step: Step) -> tuple[str, str]:
     """Run a shaker profile along an axis. On hardware the shaker has its own controller: the
@@ -281,6 +294,6 @@ HANDLERS = {
     "comment": comment, "prompt": prompt, "power": power, "configure": configure, "wait": wait, "record": record, "bit": bit,
     "set_temperature": set_temperature, "pump_down": pump_down, "vent": vent, "wait_until_stable": wait_until_stable,
     "table_rate": table_rate, "table_move": table_move, "table_tilt": table_tilt, "table_stop": table_stop,
-    "bench_rate": bench_rate, "vibrate": vibrate, "check": check,
+    "bench_rate": bench_rate, "mount": mount, "vibrate": vibrate, "check": check,
 }
 """Step type -> handler. Every action type of the schema has one (tests check it)."""

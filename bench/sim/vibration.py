@@ -519,7 +519,8 @@ class SineSweepSpec:
     def duration_s(self) -> float:
         return abs(math.log2(self.f_end_hz / self.f_start_hz)) / self.rate_oct_per_min * 60.0
 
-    def event(self, axis: Axis, t_start_s: float) -> SineSweep:
+    def event(self, axis: Axis, t_start_s: float, seed: int = 0) -> SineSweep:
+        """The sweep from ``t_start_s``; ``seed`` is accepted for symmetry with random profiles (a sweep is deterministic)."""
         return SineSweep(self.f_start_hz, self.f_end_hz, self.amplitude_g, self.rate_oct_per_min, axis, t_start_s)
 
 

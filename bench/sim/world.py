@@ -59,7 +59,17 @@ class World:
         self.chamber = Chamber(params.chamber, ambient_temp_c=params.ambient_temp_c)
         self._earth = earth_rate_dps(params.latitude_deg)
         self._field = np.asarray(params.field_ut, dtype=float)
-        self._env = Environment(rate_dps=self._earth, specific_force_g=np.array([0.0, 0.0, 1.0]), field_ut=self._field)
+        self._gravity = np.array([0.0, 0.0, 1.0])
+        self.mount = np.eye(3)
+        """Sensor frame from platter frame: v_sensor = mount @ v_platter (:meth:`set_mount`)."""
+        self._env = Environment(rate_dps=self._earth, specific_force_g=self._gravity, field_ut=self._field)
+
+    def set_mount(self, up: str) -> None:
+        """Mount the unit with sensor axis ``up`` (x, y, z, -x, -y, -z) along the platter normal
+        (the table's rotation axis), as a technician does between the axes of a rate-transfer test."""
+        self.mount = mount_matrix(up)
+        m = self.mount
+        self._env = Environment(rate_dps=m @ self._earth, specific_force_g=m @ self._gravity, field_ut=m @ self._field)
 
     def environment(self, t_s: np.ndarray) -> Environment:
         """Rate, specific force and field seen by the unit at run times ``t_s`` (s).
@@ -73,7 +83,7 @@ class World:
         φ = −latitude the table axis is perpendicular to Earth's axis and sees no Earth rate).
         """
         if not self.stage.ever_moved and not self.table.ever_moved:
-            return self._env
+            return self._env  # already in the sensor frame of the current mount
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         theta = np.radians(self.stage.angle_deg(t) + self.table.rotation.angle_deg(t))
         phi = np.radians(self.table.tilt.angle_deg(t))
@@ -91,7 +101,8 @@ class World:
         tilt_rate[:, 1] = self.table.tilt.rate_dps(t)
         rate = to_sensor(self._earth) + _rotate_z_rows(tilt_rate, c, s)
         rate[:, 2] += self.stage.rate_dps(t) + self.table.rotation.rate_dps(t)
-        return Environment(rate_dps=rate, specific_force_g=to_sensor(self._env.specific_force_g), field_ut=to_sensor(self._field))
+        m = self.mount.T  # rows @ mountᵀ = (mount @ row) for each row
+        return Environment(rate_dps=rate @ m, specific_force_g=to_sensor(self._gravity) @ m, field_ut=to_sensor(self._field) @ m)
 
     def unit_temperature_c(self, t_s: np.ndarray) -> np.ndarray:
         """Temperature of the sensor die (°C) at run times ``t_s`` (s): chamber, mount and self-heating."""
@@ -100,6 +111,30 @@ class World:
     def set_unit_power(self, t_s: float, on: bool) -> None:
         """The unit's electronics switched on or off at run time ``t_s`` (s): self-heating."""
         self.chamber.set_unit_power(t_s, on)
+
+
+def mount_matrix(up: str) -> np.ndarray:
+    """Rotation from platter to sensor frame putting sensor axis ``up`` on the platter normal.
+
+    +x: sensor (x, y, z) = platter (z, x, y); +y: (y, z, x); +z: identity (cyclic, right-handed);
+    a negative axis adds a half turn about the next axis.
+    """
+    sign = -1.0 if up.startswith("-") else 1.0
+    axis = up.lstrip("+-")
+    if axis not in ("x", "y", "z"):
+        raise ValueError(f"expected x, y, z, -x, -y or -z, got {up!r}")
+    k = "xyz".index(axis)
+    # platter z goes to sensor axis k; platter x, y to the next two (cyclic)
+    m = np.zeros((3, 3))
+    m[k, 2] = 1.0
+    m[(k + 1) % 3, 0] = 1.0
+    m[(k + 2) % 3, 1] = 1.0
+    if sign < 0:
+        flip = np.eye(3)
+        flip[k, k] = -1.0
+        flip[(k + 1) % 3, (k + 1) % 3] = -1.0
+        m = flip @ m
+    return m
 
 
 def _rotate_z_rows(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
