@@ -191,19 +191,21 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     runner = Runner(procedure, lab, recorder, progress, operator)
     state = {"signals": 0}
 
+    # Signal handlers only set flags and leave messages: printing from a handler can interrupt the
+    # terminal library in the middle of rendering (or of a lazy import) and break it.
     def on_pause(signum: int, _frame) -> None:
         runner.toggle_pause()
-        console.print(f"[bold yellow]{'pause' if runner.paused else 'resume'} requested ({signal.Signals(signum).name}); "
-                      f"{'send it again to resume' if runner.paused else 'continuing'}[/]")
+        runner.notices.append(f"[bold yellow]{'pause' if runner.paused else 'resume'} requested ({signal.Signals(signum).name}); "
+                              f"{'send it again to resume' if runner.paused else 'continuing'}[/]")
 
     def on_signal(signum: int, _frame) -> None:
         state["signals"] += 1
         name = signal.Signals(signum).name
         if state["signals"] == 1:
             runner.request_abort(f"{name} received (operator stop)")
-            console.print(f"[bold yellow]{name}: stopping; instruments go to their safe state, data is kept[/]")
-        else:
-            console.print(f"[yellow]{name} again: the safe-state sequence is running and will not be skipped[/]")
+            runner.notices.append(f"[bold yellow]{name}: stopping; instruments go to their safe state, data is kept[/]")
+        elif state["signals"] == 2:
+            runner.notices.append(f"[yellow]{name} again: the safe-state sequence is running and will not be skipped[/]")
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     pause_signals = [getattr(signal, n) for n in ("SIGUSR1", "SIGTSTP") if hasattr(signal, n)]
@@ -218,6 +220,8 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
             # after an operator stop the process is on its way out: further signals are ignored, even
             # during interpreter shutdown (which would otherwise die of them)
             signal.signal(s, signal.SIG_IGN if state["signals"] else h)
+    for text in runner.notices:
+        console.print(text)
     _print_summary(console, result, recorder.path, args.sim and not args.realtime)
     return EXIT_OK if result.ok else EXIT_FAILED
 

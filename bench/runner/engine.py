@@ -123,6 +123,9 @@ class Runner:
         self.results: dict[str, dict] = {}
         self.in_vacuum = False
         self.paused = False
+        self.notices: list[str] = []
+        """Messages from signal handlers, printed by the main loop (a handler must not render: it
+        may interrupt the terminal library in the middle of its own work)."""
         self.handlers: dict[str, Callable[["Runner", Step], tuple[str, str]]] = dict(step_handlers.HANDLERS)
 
     # ---- abort and pause ----------------------------------------------------------------------
@@ -137,8 +140,14 @@ class Runner:
         self.paused = not self.paused
 
     def _check_abort(self) -> None:
+        self.flush_notices()
         if self.abort_reason:
             raise AbortRequested(self.abort_reason)
+
+    def flush_notices(self) -> None:
+        """Print the messages signal handlers left (main thread only)."""
+        while self.notices:
+            self.progress.message(self.notices.pop(0))
 
     # ---- run --------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -191,6 +200,7 @@ class Runner:
             self.abort_reason = self.abort_reason or _describe(exc)
             self._abort_path()
         finally:
+            self.flush_notices()
             self.progress.stop(self.clock.now())
         run_time = self.clock.now()
         self._close(status)
@@ -207,6 +217,7 @@ class Runner:
         self._event("abort", "runner", self.abort_reason)
         self.progress.message(f"aborting: {self.abort_reason}; bringing instruments to their safe state")
         for name, drv in self.lab.instruments.items():
+            self.flush_notices()
             try:
                 drv.safe_state()
                 if name in self.stream_keys:
