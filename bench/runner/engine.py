@@ -13,6 +13,7 @@ evaluated, the run file is flushed, pause and abort requests are honoured.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -172,6 +173,11 @@ class Runner:
                 raise StepAbort(f"interlock {lock.name!r} watches {inst!r}, which is not open in this run")
         self.rec.start()
         self.rec.event("run_start", "runner", f"{self.procedure.name}: {len(self.procedure.steps)} steps, mode {self.lab.mode}", t_s=self.clock.now())
+        # what a replay needs to re-execute the same procedure: parameter values in force and the
+        # text of every called sub-procedure (the main text is in /texts)
+        self.rec.event("procedure", "runner", self.procedure.name, t_s=self.clock.now(), data=json.dumps({
+            "path": str(self.procedure.path), "parameters": self.procedure.parameters, "sources": self.procedure.sources,
+            "steps": len(self.procedure.steps)}, default=str).encode())
         self._poll_monitors(self.clock.now())
 
     def run(self) -> RunResult:
