@@ -206,26 +206,9 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
 
 def _instrument_limits(driver: str | None, node: Node | None, errors: list[InputError]) -> dict[str, tuple]:
     """``limits: {set_point: [-40 degC, 80 degC]}``: this lab's hardware limits (bench.procedure.limits)."""
-    from bench.procedure.limits import LIMIT_UNITS, parse_limit
+    from bench.procedure.limits import parse_limits_block
 
-    if node is None:
-        return {}
-    units = LIMIT_UNITS.get(driver or "")
-    if units is None:
-        errors.append(InputError(f"no limits can be set for a {driver} (limits exist for: {', '.join(LIMIT_UNITS)})", node.location, "limits"))
-        return {}
-    if not isinstance(node.value, dict):
-        errors.append(InputError("expected a mapping of quantities to limits", node.location, "limits"))
-        return {}
-    out = {}
-    for q, qnode in node.value.items():
-        if q not in units:
-            errors.append(InputError(f"unknown limit {q!r} for a {driver} (expected one of: {', '.join(units)})", node.key_locations[q], q))
-            continue
-        lim = parse_limit(qnode, units[q], q, errors)
-        if lim is not None:
-            out[q] = lim
-    return out
+    return {} if node is None else parse_limits_block(node, driver or "", f"a {driver}", errors)
 
 
 def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpeedCalibration:

@@ -22,8 +22,8 @@ from typing import Callable
 
 import serial
 
-from bench.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
-from drivers.transport import link_bytes_per_s, open_serial
+from bench.errors import DeviceFault, InstrumentError, ProtocolError
+from drivers.transport import LineChannel, open_serial
 
 ACK, NAK, ENQ, ETX = b"\x06", b"\x15", b"\x05", b"\x03"
 EOL = b"\r\n"
@@ -69,21 +69,17 @@ def parse_pr_reply(raw: bytes) -> tuple[int, float]:
     return int(m.group(1)), float(m.group(2))
 
 
-class MnemonicChannel:
-    """The ACK/ENQ exchange on a serial port, with every wait bounded by ``timeout_s`` and a byte
-    budget (what the link carries in that time), as :class:`drivers.transport.LineChannel` does."""
+class MnemonicChannel(LineChannel):
+    """The ACK/ENQ exchange on a serial port: :class:`drivers.transport.LineChannel`'s bounded
+    line reads (timeout and byte budget) and traffic reporting, with the TPG's handshake."""
 
     def __init__(self, port: serial.SerialBase, timeout_s: float, name: str,
                  on_traffic: Callable[[str, str, bytes], None] | None = None):
-        self.port = port
-        self.timeout_s = timeout_s
-        self.name = name
-        self.on_traffic = on_traffic
-        self._rx = bytearray()
+        super().__init__(port, timeout_s, name, on_traffic, eol=EOL)
 
     def clear(self) -> None:
         """``<ETX>`` (clears the unit's input, ends continuous mode), then drop what we hold."""
-        self._write(ETX, "ETX")
+        self.send_realtime(ETX)
         self._rx.clear()
         try:
             self.port.reset_input_buffer()
@@ -96,54 +92,20 @@ class MnemonicChannel:
         NAK -> :class:`ProtocolError`; nothing -> :class:`InstrumentTimeout`.
         """
         self.command(mnemonic)
-        self._write(ENQ, f"ENQ ({mnemonic})")
-        return self._read_line(mnemonic, self._budget())[0]
+        self.send_realtime(ENQ)
+        return self._read_line(mnemonic, self._budget())[0].encode("ascii", "replace")
 
     def command(self, mnemonic: str) -> None:
         """Send ``mnemonic`` and wait for ACK, skipping other lines (readings still streaming in)."""
         self._rx.clear()
-        self._write(mnemonic.encode("ascii") + EOL, mnemonic)
+        self.send(mnemonic)
         budget = self._budget()
         while True:
             line, budget = self._read_line(mnemonic, budget)
-            if line == ACK:
+            if line == ACK.decode():
                 return
-            if line == NAK:
+            if line == NAK.decode():
                 raise ProtocolError(f"{self.name}: NAK (refused) for {mnemonic!r}")
-
-    def _budget(self) -> int:
-        return max(64, int(link_bytes_per_s(self.port.baudrate) * self.timeout_s))
-
-    def _read_line(self, what: str, budget: int) -> tuple[bytes, int]:
-        while True:
-            if EOL[-1:] in self._rx:
-                raw, _, rest = bytes(self._rx).partition(b"\n")
-                self._rx = bytearray(rest)
-                line = raw.rstrip(b"\r")
-                if line:
-                    if self.on_traffic is not None:
-                        self.on_traffic("reply", what, raw + b"\n")
-                    return line, budget
-                continue
-            if budget < 0:
-                break
-            try:
-                chunk = self.port.read(max(1, self.port.in_waiting))
-            except serial.SerialException as exc:
-                raise InstrumentError(f"{self.name}: reading the answer to {what!r} failed: {exc}") from None
-            if not chunk:
-                break
-            budget -= len(chunk)
-            self._rx += chunk
-        raise InstrumentTimeout(f"{self.name}: no answer to {what!r} within {self.timeout_s:g} s")
-
-    def _write(self, data: bytes, name: str) -> None:
-        try:
-            self.port.write(data)
-        except serial.SerialException as exc:
-            raise InstrumentError(f"{self.name}: writing {name} failed: {exc}") from None
-        if self.on_traffic is not None:
-            self.on_traffic("command", name, data)
 
 
 class Tpg261:

@@ -66,6 +66,27 @@ def parse_limit(node: Node, units: str, name: str, errors: list[InputError]) -> 
         return None
 
 
+def parse_limits_block(node: Node, kind: str, what: str, errors: list[InputError]) -> dict[str, tuple]:
+    """A ``{quantity: limit, ...}`` mapping for an instrument with driver ``kind`` (lab config or
+    procedure); quantity -> (low, high, location). Problems are appended to ``errors``."""
+    units = LIMIT_UNITS.get(kind)
+    if units is None:
+        errors.append(InputError(f"no limits can be set for {what} (limits exist for: {', '.join(LIMIT_UNITS)})", node.location, "limits"))
+        return {}
+    if not isinstance(node.value, dict):
+        errors.append(InputError("expected a mapping of quantities to limits", node.location, "limits"))
+        return {}
+    out: dict[str, tuple] = {}
+    for q, qnode in node.value.items():
+        if q not in units:
+            errors.append(InputError(f"unknown limit {q!r} for {what} (expected one of: {', '.join(units)})", node.key_locations[q], q))
+            continue
+        lim = parse_limit(qnode, units[q], q, errors)
+        if lim is not None:
+            out[q] = (*lim, qnode.location)
+    return out
+
+
 def effective_limits(kind: str, *layers: dict[str, tuple[Any, ...]]) -> dict[str, tuple[float | None, float | None, str]]:
     """Intersection of the default limits of ``kind`` with each layer (quantity -> (lo, hi, ...)).
 

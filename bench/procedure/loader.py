@@ -684,7 +684,7 @@ def _signal_field_units(fname: str, signal_u: str | None, stat_node: Node | None
 def _limits(node: Node | None, kinds: dict[str, str], errors: list[InputError]) -> dict[str, dict[str, tuple[float | None, float | None, Location]]]:
     """``limits: {tvac: {set_point: [-29 degC, 66 degC]}, rate_table: {rate: 10 deg/s}}`` (a single
     value is a symmetric magnitude limit)."""
-    from bench.procedure.limits import LIMIT_UNITS, parse_limit
+    from bench.procedure.limits import parse_limits_block
 
     out: dict[str, dict[str, tuple[float | None, float | None, Location]]] = {}
     if node is None:
@@ -693,21 +693,9 @@ def _limits(node: Node | None, kinds: dict[str, str], errors: list[InputError]) 
         errors.append(InputError("expected a mapping of instrument names to limits", node.location, "limits"))
         return out
     for inst, lnode in node.value.items():
-        kind = kinds.get(inst, inst)
-        units = LIMIT_UNITS.get(kind)
-        if units is None:
-            errors.append(InputError(f"no limits known for instrument {inst!r} (limits exist for: {', '.join(LIMIT_UNITS)})", node.key_locations[inst], inst))
-            continue
-        if not isinstance(lnode.value, dict):
-            errors.append(InputError("expected a mapping of quantities to limits", lnode.location, inst))
-            continue
-        for q, qnode in lnode.value.items():
-            if q not in units:
-                errors.append(InputError(f"unknown limit {q!r} for {inst} (expected one of: {', '.join(units)})", lnode.key_locations[q], q))
-                continue
-            lim = parse_limit(qnode, units[q], q, errors)
-            if lim is not None:
-                out.setdefault(inst, {})[q] = (*lim, qnode.location)
+        block = parse_limits_block(lnode, kinds.get(inst, inst), f"instrument {inst!r}", errors)
+        if block:
+            out[inst] = block
     return out
 
 
