@@ -58,6 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--interval", default="1 s", help="refresh interval (default '1 s')")
     w.add_argument("--once", action="store_true", help="print one snapshot and exit")
 
+    from bench.replay.cli import add_replay_parser
+
+    add_replay_parser(sub)
+
     i = sub.add_parser("inspect", help="summarise a run file (also while it is being written)")
     i.add_argument("run_file", type=Path)
     i.add_argument("--events", type=int, default=40, help="how many of the last events to list (default 40)")
@@ -99,6 +103,10 @@ def main(argv: list[str] | None = None) -> int:
             return (cmd_validate if args.command == "validate" else cmd_plan)(args, console)
         if args.command == "watch":
             return cmd_watch(args, console)
+        if args.command == "replay":
+            from bench.replay.cli import cmd_replay
+
+            return cmd_replay(args, console)
         if args.command == "inspect":
             return cmd_inspect(args, console)
         if args.command == "calibrate-bench":
@@ -167,8 +175,10 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     runner: Runner | None = None
 
     def traffic(name: str, direction: str, what: str, raw: bytes) -> None:
-        if recorder is not None and runner is not None:
-            recorder.event(direction, name, what, t_s=lab.clock.now() if lab else 0.0, step=runner.current_step, data=raw)
+        # everything from the first byte on, opening the instruments included: replay answers it
+        if recorder is not None:
+            recorder.event(direction, name, what, t_s=lab.clock.now() if lab else 0.0,
+                           step=runner.current_step if runner is not None else -1, data=raw)
 
     recorder = RunRecorder.create(
         args.runs_dir,
@@ -187,6 +197,7 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     except BaseException as exc:
         recorder.close("aborted", f"instruments could not be opened: {exc}")
         raise
+    recorder.event("lab_open", "runner", "instruments open", t_s=lab.clock.now())
     progress = RichProgress(console)
     runner = Runner(procedure, lab, recorder, progress, operator)
     state = {"signals": 0}

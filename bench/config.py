@@ -71,6 +71,8 @@ class InstrumentConfig:
     """Run time between two readings of a polled (non-streaming) instrument (s)."""
     limits: dict[str, tuple] = field(default_factory=dict)
     """Safety limits of this lab's instrument: quantity -> (low, high); see bench.procedure.limits."""
+    reconnect_timeout_s: float = 30.0
+    """How long a run keeps reconnecting to this instrument after a link fault before it aborts (s)."""
 
 
 @dataclass
@@ -197,11 +199,16 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
         if not 0.05 <= poll <= 3600:
             errors.append(InputError("expected a poll interval between 50 ms and 1 h", n.location, "poll_interval"))
     limits = _instrument_limits(driver, f.node_at("limits"), errors)
+    reconnect = 30.0
+    if (n := f.node_at("reconnect_timeout")) is not None:
+        reconnect = _quantity(n, "s", "reconnect_timeout", errors, reconnect)
+        if not 0 <= reconnect <= 3600:
+            errors.append(InputError("expected a reconnect timeout between 0 s (abort at once) and 1 h", n.location, "reconnect_timeout"))
     f.check_unknown()
     if len(errors) > before:
         return None
     return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
-                            channels, tc_type, poll, limits)
+                            channels, tc_type, poll, limits, reconnect)
 
 
 def _instrument_limits(driver: str | None, node: Node | None, errors: list[InputError]) -> dict[str, tuple]:

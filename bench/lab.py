@@ -47,6 +47,21 @@ class Lab:
     """Run time between readings of each polled instrument (s), from the config."""
     world: World | None = None
     """The simulated world of a dry-run (None on hardware)."""
+    reconnect_timeouts: dict[str, float] = field(default_factory=dict)
+    """How long a run keeps reconnecting to each instrument after a link fault (s), from the config."""
+    openers: dict[str, Callable[[], Any]] = field(default_factory=dict)
+    """Instrument name -> how to open its driver again (same URL and settings)."""
+
+    def reopen(self, name: str) -> Any:
+        """Close instrument ``name``'s driver (errors ignored) and open it again; returns the new
+        driver (raises the driver's error if the instrument still cannot be reached)."""
+        try:
+            self.instruments[name].close()
+        except Exception:  # noqa: BLE001 - the link is already in trouble
+            pass
+        drv = self.openers[name]()
+        self.instruments[name] = drv
+        return drv
 
     def close(self) -> None:
         """Close every port, stop simulators and unregister them (errors ignored: this runs on the way out)."""
@@ -104,7 +119,8 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
         ports = {name: config.instruments[name].port for name in names}
     instruments: dict[str, Any] = {}
     lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims,
-              {name: config.instruments[name].poll_interval_s for name in names}, world)
+              {name: config.instruments[name].poll_interval_s for name in names}, world,
+              {name: config.instruments[name].reconnect_timeout_s for name in names})
     try:
         for name in names:
             inst = config.instruments[name]
@@ -112,7 +128,10 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             if on_traffic is not None:
                 hook = (lambda n: (lambda d, t, raw: on_traffic(n, d, t, raw)))(name)
             cls = DRIVER_CLASSES[inst.driver]
-            instruments[name] = cls.open(ports[name], baudrate=inst.baudrate, timeout_s=inst.timeout_s, on_traffic=hook, **kwargs[name])
+            opener = (lambda c, url, i, h, kw: (lambda: c.open(url, baudrate=i.baudrate, timeout_s=i.timeout_s, on_traffic=h, **kw)))(
+                cls, ports[name], inst, hook, kwargs[name])
+            lab.openers[name] = opener
+            instruments[name] = opener()
     except Exception:
         lab.close()
         raise

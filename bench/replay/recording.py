@@ -69,10 +69,7 @@ class Recording:
     def links(self, drivers: dict[str, str]) -> dict[tuple[str, str], list[Exchange]]:
         """(instrument, link) -> exchanges in order. ``drivers``: instrument -> driver name."""
         out: dict[tuple[str, str], list[Exchange]] = {}
-        in_prelude = self.prelude_recorded
         for e in self.summary.events:
-            if e.kind == "lab_open":
-                in_prelude = False
             if e.kind not in ("command", "reply") or e.source not in drivers:
                 continue
             key = (e.source, link_of(drivers[e.source], e.message))

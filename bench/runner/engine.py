@@ -21,7 +21,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from bench.errors import BenchError, InstrumentError, RecorderError
+from bench.errors import BenchError, DeviceFault, InstrumentError, RecorderError
 from bench.lab import Lab
 from bench.procedure import Procedure, Step
 from bench.procedure.signals import parse_signal
@@ -41,6 +41,9 @@ ACS_COLUMNS = [
     Column("status", "1", "u2"),
 ]
 """Stream layout of a sensor board: temp = (gyro die, accel die, board)."""
+
+RECONNECT_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
+"""Waits between reconnection attempts after a link fault (s of run time); the last repeats."""
 
 POLL_PERIOD_VIRTUAL_S = 5.0  # run time between stream polls in a dry-run (s): 500 frames per batch at 100 Hz
 POLL_PERIOD_WALL_S = 0.1  # on the wall clock: keeps abort latency and progress updates short
@@ -229,7 +232,7 @@ class Runner:
                 if name in self.stream_keys:
                     self._drain(name)
                 self._event("safe_state", name, "streaming stopped" if name in self.stream_keys else "safe state reached")
-            except (BenchError, OSError, ValueError) as exc:
+            except Exception as exc:  # noqa: BLE001 - the abort path must reach every instrument and the file
                 self._event("error", name, f"safe state failed: {_describe(exc)}")
                 self.progress.message(f"{name}: safe state failed: {_describe(exc)}")
         self.streaming.clear()
@@ -280,7 +283,7 @@ class Runner:
             if t + 1e-9 >= next_drain:
                 next_drain = min(t + period, t_end)
                 for name in list(self.streaming):
-                    self._drain(name)
+                    self._guarded(name, lambda n=name: self._drain(n))
                 self._check_stalls(self.clock.now())
                 self.rec.tick(self.clock.now())
                 self.progress.advance(self.clock.now(), self._readings())
@@ -316,7 +319,7 @@ class Runner:
             body()
         finally:
             self.streaming.discard(name)
-        drv.stop_stream()
+        self.lab.instruments[name].stop_stream()  # the driver may have been reopened after a link fault
         self._drain(name)
         self.windows.end(window, self.clock.now())
         return self.rec.rows_written(self.stream_keys[name]) - before
@@ -343,7 +346,7 @@ class Runner:
         for name, due in list(self._monitor_due.items()):
             if t + 1e-9 < due:
                 continue
-            self._poll_one(name, t)
+            self._guarded(name, lambda n=name: self._poll_one(n, self.clock.now()))
             interval = self.lab.poll_intervals.get(name, 1.0)
             self._monitor_due[name] = due + interval if due + interval > t else t + interval
 
@@ -355,6 +358,53 @@ class Runner:
             for col, v in values.items():
                 self.windows.feed_one(f"{name}.{col}", t, float(v))
         self._check_interlocks(name)
+
+    # ---- link faults ------------------------------------------------------------------------
+    def _guarded(self, name: str, read: Callable[[], object]) -> None:
+        """Run an idempotent read (a polled reading, a stream drain); a link fault (timeout, lost
+        port, garbled answer) is recovered by reconnecting with backoff, the gap recorded. A
+        fault the instrument reports itself (DeviceFault) is not a link fault: it aborts."""
+        try:
+            read()
+        except DeviceFault:
+            raise
+        except (InstrumentError, OSError) as exc:
+            self._reconnect(name, exc)
+            read()
+
+    def _reconnect(self, name: str, exc: BaseException) -> None:
+        t0 = self.clock.now()
+        limit = self.lab.reconnect_timeouts.get(name, 30.0)
+        self.rec.event("fault", name, f"link fault: {_describe(exc)}; reconnecting (up to {limit:g} s)", t_s=t0, step=self.current_step)
+        self.progress.message(f"{name}: link fault ({_describe(exc)}); reconnecting")
+        attempt, last = 0, exc
+        while True:
+            self._check_abort()
+            wait = RECONNECT_BACKOFF_S[min(attempt, len(RECONNECT_BACKOFF_S) - 1)]
+            if self.clock.now() - t0 + wait > limit:
+                raise InstrumentError(f"{name}: link lost ({_describe(last)}); not restored within {limit:g} s")
+            self.clock.sleep(wait)
+            self.progress.advance(self.clock.now(), f"{name}: reconnecting (attempt {attempt + 1})")
+            attempt += 1
+            try:
+                drv = self.lab.reopen(name)
+                drv.identify()
+                if name in self.monitor_keys:
+                    drv.monitor_columns()  # a fresh driver sets its instrument up again (thermocouple scan list)
+                if name in self.streaming and not drv.get_config()["streaming"]:
+                    drv.start_stream()
+                break
+            except DeviceFault:
+                raise
+            except (InstrumentError, OSError) as again:
+                last = again
+        t1 = self.clock.now()
+        for w in self.windows.all.values():
+            if w.open:
+                w.meta.setdefault("gaps_s", []).append([t0, t1])
+        self.rec.event("gap", name, f"link restored after {t1 - t0:.1f} s ({attempt} attempt(s)); no data from {name} in between",
+                       t_s=t1, step=self.current_step, data=json.dumps({"t_start_s": t0, "t_end_s": t1, "attempts": attempt}).encode())
+        self.progress.message(f"{name}: link restored after {t1 - t0:.1f} s")
 
     def _check_interlocks(self, inst: str) -> None:
         for lock in self.procedure.interlocks:

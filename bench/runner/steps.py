@@ -177,10 +177,8 @@ def table_rate(r: "Runner", step: Step) -> tuple[str, str]:
 
 
 def _wait_target(r: "Runner", inst: str, what: str) -> None:
-    drv = r.lab.instruments[inst]
-
     def reached() -> bool:
-        s = drv.read()
+        s = r.lab.instruments[inst].read()  # looked up each time: a link fault may reopen the driver
         if s["any_fault"]:
             raise StepAbort(f"{inst}: drive fault during {what}")
         return bool(s["target_reached"] and s["tilt_target_reached"])

@@ -1,0 +1,36 @@
+"""``bench replay RUN.h5 [--procedure P.yaml] [--runs-dir DIR]``.
+
+Wiring in ``bench/cli.py``: ``add_replay_parser(sub)`` in ``build_parser`` and
+``if args.command == "replay": return cmd_replay(args, console)`` in ``main``.
+Exit codes: 0 the replay matches, 1 it diverged (report of the first divergence and a count of
+the rest), 2 the file cannot be replayed (one line).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rich.console import Console
+
+from bench.errors import EXIT_FAILED, EXIT_OK
+
+
+def add_replay_parser(subparsers) -> argparse.ArgumentParser:
+    rp = subparsers.add_parser("replay", help="re-execute a recorded run against its recorded instrument answers and compare")
+    rp.add_argument("run_file", type=Path, help="run file (.h5) from bench run, with --sim or on hardware")
+    rp.add_argument("--procedure", type=Path, default=None, help="replay this procedure instead of the one stored in the run file")
+    rp.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where the replay's own run file goes (default: runs/)")
+    return rp
+
+
+def cmd_replay(args: argparse.Namespace, console: Console) -> int:
+    import logging
+
+    from bench.replay.run import replay
+
+    logging.getLogger("canopen").setLevel(logging.CRITICAL)  # SDO aborts become typed errors in the report
+
+    result = replay(args.run_file, args.procedure, args.runs_dir)
+    console.print(result.report(), markup=False, highlight=False, soft_wrap=True)
+    return EXIT_OK if result.ok else EXIT_FAILED

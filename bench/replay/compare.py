@@ -1,0 +1,180 @@
+"""Compare a replay with its source: command sequences per link, step outcomes, checks, streams,
+how the run ended. Tolerances (docs/replay.md): times 1e-6 s (dry-run sources only; hardware
+sources are compared in order, not in time); numbers |a - b| <= 1e-9 * max(|a|, |b|) + 1e-12.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.record.reader import RunSummary
+
+TIME_TOL_S = 1e-6
+REL_TOL = 1e-9
+ABS_TOL = 1e-12
+_NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+@dataclass
+class Divergence:
+    t_s: float
+    what: str  # command | step | check | stream | end
+    step: int
+    step_name: str
+    instrument: str
+    expected: str
+    got: str
+
+    def render(self) -> str:
+        where = f"step {self.step + 1} ({self.step_name})" if self.step >= 0 else "outside steps"
+        inst = f", instrument {self.instrument}" if self.instrument else ""
+        return (f"first divergence at run time {self.t_s:.3f} s, {where}{inst}: {self.what}\n"
+                f"  expected: {self.expected}\n  got:      {self.got}")
+
+
+def close(a: float, b: float) -> bool:
+    if a is None or b is None:
+        return a is b
+    a, b = float(a), float(b)
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return abs(a - b) <= REL_TOL * max(abs(a), abs(b)) + ABS_TOL
+
+
+def same_text(a: str, b: str) -> bool:
+    """Equal, or equal up to numbers that are close (messages print measured values)."""
+    if a == b:
+        return True
+    if _NUM.sub("#", a) != _NUM.sub("#", b):
+        return False
+    na, nb = _NUM.findall(a), _NUM.findall(b)
+    return len(na) == len(nb) and all(close(float(x), float(y)) for x, y in zip(na, nb))
+
+
+def _cmd_text(name: str, data: bytes, step: int, t: float) -> str:
+    return f"{name} [{data.hex(' ')}] in step {step + 1} at {t:.6f} s"
+
+
+def compare(src: RunSummary, rep: RunSummary, drivers: dict[str, str], *, timed: bool, prefix_only: bool,
+            skip_prelude: bool) -> list[Divergence]:
+    """Every divergence, ordered by run time. ``timed``: compare event times (dry-run sources).
+    ``prefix_only``: the source stopped without an end (crashed): compare what it holds.
+    ``skip_prelude``: ignore replay traffic before ``lab_open`` (the source lacks it)."""
+    from bench.replay.recording import link_of
+
+    names = {s.index: s.name for s in src.steps} | {s.index: s.name for s in rep.steps}
+    out: list[Divergence] = []
+
+    def cmds(summary: RunSummary, skip: bool) -> dict[tuple[str, str], list]:
+        d: dict[tuple[str, str], list] = {}
+        seen_open = not skip
+        for e in summary.events:
+            if e.kind == "lab_open":
+                seen_open = True
+            if e.kind != "command" or e.source not in drivers or not seen_open:
+                continue
+            d.setdefault((e.source, link_of(drivers[e.source], e.message)), []).append(e)
+        return d
+
+    a, b = cmds(src, False), cmds(rep, skip_prelude)
+    for key in sorted(set(a) | set(b)):
+        ea, eb = a.get(key, []), b.get(key, [])
+        n = len(ea) if prefix_only else max(len(ea), len(eb))
+        for i in range(n):
+            x = ea[i] if i < len(ea) else None
+            y = eb[i] if i < len(eb) else None
+            if x is not None and y is not None:
+                if x.message == y.message and x.data == y.data and x.step == y.step and (not timed or abs(x.t_s - y.t_s) <= TIME_TOL_S):
+                    continue
+            ref = x or y
+            out.append(Divergence(
+                ref.t_s if x is None or y is None else min(x.t_s, y.t_s), "command", ref.step, names.get(ref.step, ""), " ".join(key).strip(),
+                _cmd_text(x.message, x.data, x.step, x.t_s) if x else "(no more commands recorded)",
+                _cmd_text(y.message, y.data, y.step, y.t_s) if y else "(the replay sent no such command)"))
+
+    sa, sb = {s.index: s for s in src.steps}, {s.index: s for s in rep.steps}
+    for i in sorted(set(sa) | set(sb)):
+        x, y = sa.get(i), sb.get(i)
+        if prefix_only and (x is None or x.outcome in ("interrupted", "running")):
+            continue
+        if x is not None and y is not None:
+            ok = (x.type, x.name, x.outcome) == (y.type, y.name, y.outcome) and same_text(x.detail, y.detail)
+            if ok and timed:
+                ok = all(p is None and q is None or (p is not None and q is not None and abs(p - q) <= TIME_TOL_S)
+                         for p, q in ((x.t_start_s, y.t_start_s), (x.t_end_s, y.t_end_s)))
+            if ok:
+                continue
+        ref = x or y
+        desc = (lambda s: f"{s.type} {s.name!r} {s.outcome}" + (f": {s.detail}" if s.detail else "")
+                + f" ({s.t_start_s:.6f}..{(s.t_end_s if s.t_end_s is not None else float('nan')):.6f} s)" if s else "(not executed)")
+        out.append(Divergence(ref.t_end_s if ref.t_end_s is not None else (ref.t_start_s or 0.0), "step outcome", i, ref.name, "", desc(x), desc(y)))
+
+    def checks(summary: RunSummary) -> dict[str, tuple[float, dict]]:
+        d = {}
+        for e in summary.events:
+            if e.kind == "check":
+                try:
+                    d[e.source] = (e.t_s, e.step, json.loads(e.data.decode("utf-8")))
+                except (UnicodeDecodeError, json.JSONDecodeError):
+                    d[e.source] = (e.t_s, e.step, {})
+        return d
+
+    ca, cb = checks(src), checks(rep)
+    for name in sorted(set(ca) | set(cb)):
+        x, y = ca.get(name), cb.get(name)
+        if prefix_only and x is None:
+            continue
+        if x is not None and y is not None:
+            p, q = x[2], y[2]
+            if all(p.get(k) == q.get(k) for k in ("signal", "statistic", "window", "outcome", "min", "max", "reference", "basis")) \
+                    and close(p.get("value"), q.get("value")):
+                continue
+        ref = x or y
+        fmt = (lambda c: f"{c[2].get('outcome')}: {c[2].get('statistic')} of {c[2].get('signal')} = {c[2].get('value')!r}" if c else "(no such check)")
+        out.append(Divergence(ref[0], f"check {name}", ref[1], names.get(ref[1], ""), "", fmt(x), fmt(y)))
+
+    if not prefix_only and (src.status, src.abort_reason) != (rep.status, rep.abort_reason):
+        t = max((e.t_s for e in rep.events), default=0.0)
+        out.append(Divergence(t, "end of run", -1, "", "", f"{src.status}" + (f": {src.abort_reason}" if src.abort_reason else ""),
+                              f"{rep.status}" + (f": {rep.abort_reason}" if rep.abort_reason else "")))
+    out.sort(key=lambda d: (d.t_s, 0 if d.what == "command" else 1))
+    return out
+
+
+def compare_streams(src_path, rep_path, src: RunSummary, rep: RunSummary, prefix_only: bool) -> list[Divergence]:
+    """Rows of every recorded stream: same count (a prefix for crashed sources) and values within
+    the tolerance (NaN equals NaN). Read in blocks so long recordings stay cheap in memory."""
+    import h5py
+
+    out = []
+    keys_b = {s.key: s for s in rep.streams}
+    for s in src.streams:
+        r = keys_b.get(s.key)
+        if r is None:
+            out.append(Divergence(s.t_start_s or 0.0, f"stream {s.key}", -1, "", s.key.split("/")[0], f"{s.rows} rows", "(no such stream)"))
+            continue
+        if (s.rows != r.rows and not prefix_only) or r.rows < s.rows:
+            out.append(Divergence(s.t_end_s or 0.0, f"stream {s.key}", -1, "", s.key.split("/")[0], f"{s.rows} rows", f"{r.rows} rows"))
+            continue
+        with h5py.File(src_path, "r", swmr=True, locking=False) as fa, h5py.File(rep_path, "r", locking=False) as fb:
+            ga, gb = fa["streams"][s.key], fb["streams"][s.key]
+            block = 1 << 18
+            for name in ga:
+                for i in range(0, s.rows, block):
+                    xa = np.asarray(ga[name][i:i + block], dtype=float)
+                    xb = np.asarray(gb[name][i:min(i + block, s.rows)], dtype=float)
+                    if not np.allclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True):
+                        bad = np.nonzero(~np.isclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True).reshape(len(xa), -1).all(axis=1))[0][0]
+                        t = float(ga["time"][i + bad])
+                        out.append(Divergence(t, f"stream {s.key} column {name} row {i + bad}", -1, "", s.key.split("/")[0],
+                                              repr(ga[name][i + bad]), repr(gb[name][i + bad])))
+                        break
+                else:
+                    continue
+                break
+    return out
