@@ -115,3 +115,22 @@ def test_a_file_without_the_procedure_event_is_refused_clearly(tmp_path: Path):
     with pytest.raises(InputError) as err:
         replay(not_run, runs_dir=tmp_path)
     assert "not a readable bench run file" in err.value.one_line()
+
+
+def test_replay_of_a_crashed_wall_clock_run_matches_up_to_the_crash(tmp_path: Path):
+    """A `--realtime` run killed with SIGKILL: replayed up to its last event, commands in order."""
+    import signal
+
+    from tests.test_cli_end_to_end import _start_realtime, _wait_for_rows
+
+    p, runs = _start_realtime(tmp_path, 60)
+    try:
+        path = _wait_for_rows(runs, 200)
+        p.send_signal(signal.SIGKILL)
+        p.wait(timeout=10)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert read_run_summary(path, stale_after_s=0).status == "crashed"
+    result = replay(path, runs_dir=tmp_path / "replays")
+    assert result.ok, result.report()

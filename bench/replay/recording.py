@@ -65,6 +65,9 @@ class Recording:
     prelude_recorded: bool
     """Whether the traffic of opening the instruments is in the file (a ``lab_open`` event marks its end)."""
     end_t_s: float
+    clock: str = "virtual"
+    """``virtual`` (a dry-run: command times are reproducible and compared) or ``wall`` (hardware or
+    ``--realtime``: commands are compared in order only)."""
 
     def links(self, drivers: dict[str, str]) -> dict[tuple[str, str], list[Exchange]]:
         """(instrument, link) -> exchanges in order. ``drivers``: instrument -> driver name."""
@@ -113,6 +116,7 @@ def load_recording(path: Path) -> Recording:
         path=path, summary=summary, sha256=_sha256(path), mode=str(summary.attrs.get("mode", "")), status=summary.status,
         parameters=dict(info.get("parameters") or {}), sources=dict(info.get("sources") or {}), answers=answers,
         prelude_recorded=any(e.kind == "lab_open" for e in summary.events), end_t_s=end,
+        clock=str(info.get("clock") or ("wall" if summary.attrs.get("mode") == "hardware" else "virtual")),
     )
 
 

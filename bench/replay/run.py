@@ -158,8 +158,8 @@ def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = 
     crashed = rec.status in ("crashed", "running")
     if crashed:
         notes.append(f"note: the source has no end (status {rec.status}); compared up to its last event at {rec.end_t_s:.1f} s")
-    divs = compare(src, rep, drivers, timed=rec.mode != "hardware", prefix_only=crashed, skip_prelude=False)
-    divs += compare_streams(rec.path, recorder.path, src, rep, crashed)
+    divs = compare(src, rep, drivers, timed=rec.clock == "virtual", prefix_only=crashed, skip_prelude=False)
+    divs += compare_streams(rec.path, recorder.path, src, rep, crashed, timed=rec.clock == "virtual")
     divs.sort(key=lambda d: (d.t_s, 0 if d.what == "command" else 1))
     commands = sum(1 for e in rep.events if e.kind == "command")
     return ReplayResult(rec.path, recorder.path, divs, run_time, wall, status, reason, commands, notes)

@@ -180,7 +180,7 @@ class Runner:
         # text of every called sub-procedure (the main text is in /texts)
         self.rec.event("procedure", "runner", self.procedure.name, t_s=self.clock.now(), data=json.dumps({
             "path": str(self.procedure.path), "parameters": self.procedure.parameters, "sources": self.procedure.sources,
-            "steps": len(self.procedure.steps)}, default=str).encode())
+            "steps": len(self.procedure.steps), "clock": "virtual" if self.clock.virtual else "wall"}, default=str).encode())
         self._poll_monitors(self.clock.now())
 
     def run(self) -> RunResult:
