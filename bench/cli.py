@@ -42,6 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--operator", default=None, help="operator name recorded in the run file (default: login name)")
     r.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help="override a procedure parameter, e.g. -p cold=-20degC")
     r.add_argument("--answers", type=Path, default=None, help="YAML file answering the procedure's operator prompts (id: yes)")
+    r.add_argument("--inject-faults", metavar="SPEC", default=None,
+                   help="with --sim: inject faults through the simulators, e.g. 'rate=6/h,seed=1' or 'serial_unplug@300s' (docs/reliability.md)")
 
     v = sub.add_parser("validate", help="check a procedure (and its limits against a lab config) without running it")
     v.add_argument("procedure", type=Path)
@@ -76,6 +78,22 @@ def build_parser() -> argparse.ArgumentParser:
     chk = icsub.add_parser("check", help="identify every instrument of a config and read one value from each")
     chk.add_argument("--config", type=Path, required=True, help="lab config YAML file")
     chk.add_argument("--sim", action="store_true", help="check the simulators behind the drivers (implied by 'mode: sim' in the config)")
+
+    from bench.cli_analysis import add_analysis_parsers
+
+    add_analysis_parsers(sub)
+
+    sk = sub.add_parser("soak", help="run the procedure library back to back on the simulated lab with random faults")
+    sk.add_argument("--config", type=Path, required=True, help="lab config YAML file (simulated lab)")
+    sk.add_argument("--hours", type=float, required=True, help="run time to soak for (h of virtual time)")
+    sk.add_argument("--faults-per-hour", type=float, default=3.0, help="mean injected faults per hour of run time (default 3)")
+    sk.add_argument("--seed", type=int, default=0, help="seed of the order, fault times, classes and parameters (default 0)")
+    sk.add_argument("--runs-dir", type=Path, default=Path("runs/soak"), help="where the run files go (default: runs/soak/)")
+    sk.add_argument("--procedures", type=Path, nargs="+", default=None,
+                    help="procedure files (default: every procedures/*.yaml next to the config's directory)")
+    sk.add_argument("--answers", type=Path, default=None, help="answers to operator prompts (default: procedures/answers/ci.yaml)")
+    sk.add_argument("--classes", default=None, help="fault classes to draw from, e.g. transient or serial_unplug+disk_full (default: all)")
+    sk.add_argument("--json", action="store_true", help="print the report as JSON")
 
     s = sub.add_parser("sim", help="simulated instruments")
     ssub = s.add_subparsers(dest="sim_command", metavar="SIMCOMMAND", parser_class=_Parser)
@@ -113,6 +131,14 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_calibrate_bench(args, console)
         if args.command == "instruments":
             return cmd_instruments_check(args, console)
+        if args.command in ("calibrate", "import", "report", "diagnose"):
+            from bench import cli_analysis
+
+            return getattr(cli_analysis, f"cmd_{args.command}")(args, console)
+        if args.command == "soak":
+            from bench.cli_soak import cmd_soak
+
+            return cmd_soak(args, console)
         if args.command == "sim" and args.sim_command == "serve":
             return cmd_sim_serve(args, console)
         parser.print_help()
@@ -146,11 +172,10 @@ def main(argv: list[str] | None = None) -> int:
 # ---- run --------------------------------------------------------------------------------------
 def cmd_run(args: argparse.Namespace, console: Console) -> int:
     from bench.cli_procedure import load_checked, parse_params
-    from bench.lab import open_lab
-    from bench.record import RunRecorder, check_destination
+    from bench.record import check_destination
     from bench.runner.operator import Operator
-    from bench.runner import Runner
     from bench.runner.progress import RichProgress
+    from bench.runner.session import start_run
 
     procedure, config = load_checked(args.procedure, args.config, parse_params(args.param))
     args.sim = args.sim or config.mode == "sim"
@@ -168,38 +193,19 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
             raise InputErrors([
                 InputError("has no 'sim' section, so it cannot be simulated (--sim)", config.instruments[n].location, n) for n in no_sim
             ])
+    fault_spec = None
+    if args.inject_faults is not None:
+        from bench.sim.fault_injection import parse_fault_spec
+
+        if not args.sim:
+            raise InputError("faults can only be injected into simulated runs; add --sim", None, "--inject-faults")
+        fault_spec = parse_fault_spec(args.inject_faults)
     check_destination(args.runs_dir, _estimate_bytes(procedure))
 
-    recorder = None
-    lab = None
-    runner: Runner | None = None
-
-    def traffic(name: str, direction: str, what: str, raw: bytes) -> None:
-        # everything from the first byte on, opening the instruments included: replay answers it
-        if recorder is not None:
-            recorder.event(direction, name, what, t_s=lab.clock.now() if lab else 0.0,
-                           step=runner.current_step if runner is not None else -1, data=raw)
-
-    recorder = RunRecorder.create(
-        args.runs_dir,
-        procedure_name=procedure.name,
-        procedure_text=procedure.text,
-        procedure_path=str(args.procedure),
-        config_text=config.text,
-        config_path=str(args.config),
-        mode="sim" if args.sim else "hardware",
-        software_version=__version__,
-        flush_interval_s=config.flush_interval_s,
-        **({"operator": args.operator} if args.operator else {}),
-    )
-    try:
-        lab = open_lab(config, procedure.instruments, sim=args.sim, realtime=args.realtime, on_traffic=traffic)
-    except BaseException as exc:
-        recorder.close("aborted", f"instruments could not be opened: {exc}")
-        raise
-    recorder.event("lab_open", "runner", "instruments open", t_s=lab.clock.now())
-    progress = RichProgress(console)
-    runner = Runner(procedure, lab, recorder, progress, operator)
+    session = start_run(procedure, config, procedure_path=args.procedure, config_path=args.config, runs_dir=args.runs_dir,
+                        sim=args.sim, realtime=args.realtime, operator=operator, progress=RichProgress(console),
+                        operator_name=args.operator, fault_spec=fault_spec)
+    runner, lab, recorder = session.runner, session.lab, session.recorder
     state = {"signals": 0}
 
     # Signal handlers only set flags and leave messages: printing from a handler can interrupt the

@@ -5,6 +5,7 @@ Validated like procedures: every problem is a located one-line :class:`InputErro
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -227,8 +228,9 @@ def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpee
     b = BenchSpeedCalibration.b_s_per_rad
     if (n := f.node_at("b")) is not None:
         b = _quantity(n, "s/rad", "b", errors, b)
-    if isinstance(k, (int, float)) and not k > 0:
-        errors.append(InputError("k must be > 0", f.map["k"].location, "k"))
+    if isinstance(k, (int, float)) and not (math.isfinite(k) and k >= 1e-6):
+        errors.append(InputError("k must be a finite number of at least 1e-6 (ESTCube-2 bench: 19.5154)", f.map["k"].location, "k"))
+        k = BenchSpeedCalibration.k  # keep what is derived from it (microsteps per revolution) computable
     f.check_unknown()
     return BenchSpeedCalibration(float(k), b)
 

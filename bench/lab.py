@@ -51,6 +51,10 @@ class Lab:
     """How long a run keeps reconnecting to each instrument after a link fault (s), from the config."""
     openers: dict[str, Callable[[], Any]] = field(default_factory=dict)
     """Instrument name -> how to open its driver again (same URL and settings)."""
+    kinds: dict[str, str] = field(default_factory=dict)
+    """Instrument name -> driver kind (``tvac``, ``rate_table``, ...), from the config."""
+    config_limits: dict[str, dict[str, tuple]] = field(default_factory=dict)
+    """This lab's hardware limits per instrument (config ``limits:``; see bench.procedure.limits)."""
 
     def reopen(self, name: str) -> Any:
         """Close instrument ``name``'s driver (errors ignored) and open it again; returns the new
@@ -121,6 +125,8 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
     lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims,
               {name: config.instruments[name].poll_interval_s for name in names}, world,
               {name: config.instruments[name].reconnect_timeout_s for name in names})
+    lab.kinds = {name: config.instruments[name].driver for name in names}
+    lab.config_limits = config.limits()
     try:
         for name in names:
             inst = config.instruments[name]

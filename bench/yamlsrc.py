@@ -24,6 +24,9 @@ class Node:
     location: Location
     key_locations: dict[str, Location] = field(default_factory=dict)
 
+    def __repr__(self) -> str:  # messages quoting a list or mapping show its values, not Node objects
+        return repr(self.plain())
+
     def plain(self) -> Any:
         """The value with all nested Nodes unwrapped to plain Python."""
         if isinstance(self.value, list):
@@ -47,37 +50,64 @@ def _loc(path: str, mark: yaml.Mark) -> Location:
 
 
 _SAFE = yaml.SafeLoader
+_PLAIN_TAGS = ("tag:yaml.org,2002:seq", "tag:yaml.org,2002:map")
+MAX_VALUES = 100_000
+"""Most values (scalars, lists, mappings) a document may hold once its aliases are expanded: a
+few aliases of aliases would otherwise expand into billions of values."""
+MAX_FLOAT = float.fromhex("0x1.fffffffffffffp+1023")
 
 
-def _convert(node: yaml.Node, path: str) -> Node:
+class _Budget:
+    """Values left to convert, and the collection nodes being converted (to catch an alias of itself)."""
+
+    def __init__(self) -> None:
+        self.left = MAX_VALUES
+        self.active: set[int] = set()
+
+
+def _convert(node: yaml.Node, path: str, budget: _Budget) -> Node:
     loc = _loc(path, node.start_mark)
+    budget.left -= 1
+    if budget.left < 0:
+        raise InputError(f"the document holds more than {MAX_VALUES} values (aliases expanding too far?)", loc)
     if isinstance(node, yaml.ScalarNode):
         # Resolve the scalar the way SafeLoader would (int, float, bool, null, str).
         loader = _SAFE("")
         try:
             value = loader.construct_object(node, deep=True)
-        except yaml.YAMLError as exc:
-            raise InputError(f"cannot read value: {exc}", loc) from None
+        except (yaml.YAMLError, ValueError, OverflowError) as exc:  # bad !!int/!!float/!!timestamp text, huge ints
+            raise InputError(f"cannot read value: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", loc) from None
         finally:
             loader.dispose()
+        if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_FLOAT:
+            raise InputError(f"number {node.value[:20]}{'...' if len(node.value) > 20 else ''} is too large", loc)
         if not isinstance(value, (str, int, float, bool, type(None))):
             value = str(node.value)  # timestamps, binary: keep the text, schema decides
         return Node(value, loc)
-    if isinstance(node, yaml.SequenceNode):
-        return Node([_convert(n, path) for n in node.value], loc)
-    if isinstance(node, yaml.MappingNode):
-        out: dict[str, Node] = {}
-        keys: dict[str, Location] = {}
-        for key_node, value_node in node.value:
-            kloc = _loc(path, key_node.start_mark)
-            if not isinstance(key_node, yaml.ScalarNode):
-                raise InputError("mapping keys must be plain names", kloc)
-            key = str(key_node.value)
-            if key in out:
-                raise InputError(f"duplicate key {key!r} (first at line {keys[key].line})", kloc, key)
-            out[key] = _convert(value_node, path)
-            keys[key] = kloc
-        return Node(out, loc, keys)
+    if node.tag not in _PLAIN_TAGS:
+        raise InputError(f"YAML tag {node.tag!r} is not allowed (plain lists and mappings only)", loc)
+    if id(node) in budget.active:
+        raise InputError("an alias refers to the list or mapping that contains it", loc)
+    budget.active.add(id(node))
+    try:
+        if isinstance(node, yaml.SequenceNode):
+            return Node([_convert(n, path, budget) for n in node.value], loc)
+        if isinstance(node, yaml.MappingNode):
+            out: dict[str, Node] = {}
+            keys: dict[str, Location] = {}
+            for key_node, value_node in node.value:
+                kloc = _loc(path, key_node.start_mark)
+                if not isinstance(key_node, yaml.ScalarNode):
+                    raise InputError("mapping keys must be plain names", kloc)
+                _convert(key_node, path, budget)  # refuses tags SafeLoader refuses (!!python/...)
+                key = str(key_node.value)
+                if key in out:
+                    raise InputError(f"duplicate key {key!r} (first at line {keys[key].line})", kloc, key)
+                out[key] = _convert(value_node, path, budget)
+                keys[key] = kloc
+            return Node(out, loc, keys)
+    finally:
+        budget.active.discard(id(node))
     raise InputError("unsupported YAML node", loc)
 
 
@@ -85,11 +115,17 @@ def load_yaml(path: str | Path, what: str = "file") -> Source:
     """Read and parse ``path``; any problem is an :class:`InputError` located in the file."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        data = p.read_bytes()
     except FileNotFoundError:
         raise InputError(f"{what} not found", Location(p)) from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
         raise InputError(f"cannot read {what}: {exc}", Location(p)) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"cannot read {what}: byte 0x{data[exc.start]:02x} is not UTF-8 text", Location(p, line)) from None
+    text = text.replace("\r\n", "\n").replace("\r", "\n")  # universal newlines, as text-mode reading
     return parse_yaml(text, str(p), what)
 
 
@@ -97,15 +133,25 @@ def parse_yaml(text: str, path: str, what: str = "file") -> Source:
     """Parse YAML ``text`` (from ``path``, used in messages) into a located :class:`Node` tree."""
     try:
         nodes = list(yaml.compose_all(text, Loader=_SAFE))
+    except RecursionError:
+        raise InputError("not valid YAML: lists or mappings nested too deeply", Location(path)) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         loc = _loc(path, mark) if mark else Location(path)
         raise InputError(f"not valid YAML: {exc.problem or exc.context}", loc) from None
+    except yaml.reader.ReaderError as exc:  # a character YAML does not allow (NUL, a control character)
+        line = text.count("\n", 0, exc.position) + 1
+        column = exc.position - (text.rfind("\n", 0, exc.position) + 1) + 1
+        char = f"#x{exc.character:04x}" if isinstance(exc.character, int) else repr(exc.character)
+        raise InputError(f"not valid YAML: unacceptable character {char}: {exc.reason}", Location(path, line, column)) from None
     except yaml.YAMLError as exc:
-        raise InputError(f"not valid YAML: {exc}", Location(path)) from None
+        raise InputError(f"not valid YAML: {' '.join(str(exc).split())}", Location(path)) from None
     if len(nodes) != 1 or nodes[0] is None:
         raise InputError(f"expected exactly one YAML document in the {what}", Location(path, 1, 1))
-    root = _convert(nodes[0], path)
+    try:
+        root = _convert(nodes[0], path, _Budget())
+    except RecursionError:
+        raise InputError("lists or mappings nested too deeply", Location(path)) from None
     if not isinstance(root.value, dict):
         raise InputError(f"the {what} must be a mapping at top level", root.location)
     return Source(Path(path), text, root)

@@ -511,7 +511,10 @@ def test_file_size_limit_stops_recording_cleanly(tmp_path: Path) -> None:
     assert s.status == "aborted" and "file size limit" in s.abort_reason
     assert s.events[-1].kind == "abort" and "file size limit" in s.events[-1].message  # written at close
     flushed = [int(line.split()[1]) for line in proc.stdout.splitlines() if line.startswith("flushed")]
-    assert flushed and {x.key: x.rows for x in s.streams}["inst0"] == flushed[-1]
+    rows = {x.key: x.rows for x in s.streams}["inst0"]
+    # the rows accepted before the refused flush fit in the reserve the refusal kept: none lost
+    with h5py.File(path, "r") as f:
+        assert rows == int(f["streams/inst0"].attrs["rows_appended"]) > flushed[-1]
 
 
 def test_failed_hdf5_write_is_reported_not_silent(tmp_path: Path) -> None:
@@ -544,10 +547,11 @@ def test_disk_nearly_full_refuses_flush_keeps_events(tmp_path: Path, monkeypatch
     rec.start()
     rec.append(key, np.arange(10.0), v=np.ones(10))
     rec.flush()
+    rec.append(key, np.arange(10.0, 20.0), v=np.ones(10))  # accepted: room for them and the reserve
     real = shutil.disk_usage
-    monkeypatch.setattr(writer_mod.shutil, "disk_usage", lambda p: real(p)._replace(free=600_000))
-    rec.append(key, np.arange(10.0, 20.0), v=np.ones(10))
-    with pytest.raises(RecorderError, match=f"writing {rec.path} failed: disk nearly full: 0.6 MB free"):
+    free = rec.space_needed() - 1  # the disk filled up meanwhile: just short of next write + reserve
+    monkeypatch.setattr(writer_mod.shutil, "disk_usage", lambda p: real(p)._replace(free=free))
+    with pytest.raises(RecorderError, match=f"writing {rec.path} failed: disk nearly full: {free / 1e6:.1f} MB free"):
         rec.flush()
     with pytest.raises(RecorderError, match="failed earlier: disk nearly full"):
         rec.append(key, np.arange(20.0, 30.0), v=np.ones(10))
@@ -557,10 +561,28 @@ def test_disk_nearly_full_refuses_flush_keeps_events(tmp_path: Path, monkeypatch
     rec.close("aborted")  # closed: no-op
     s = read_run_summary(tmp_path / rec.path.name)
     assert s.status == "aborted" and s.abort_reason.startswith("writing the run file failed: disk nearly full")
-    assert [x.rows for x in s.streams] == [10] and rec.rows_written(key) == 20
+    # the 10 rows accepted before the refusal fit in the reserve the refusal kept: none lost
+    assert [x.rows for x in s.streams] == [20] and rec.rows_written(key) == 20
     assert s.events[-1].message == "recorder: disk nearly full"
     with h5py.File(rec.path, "r") as f:
-        assert (f["streams/daq"].attrs["rows"], f["streams/daq"].attrs["rows_appended"]) == (10, 20)
+        assert (f["streams/daq"].attrs["rows"], f["streams/daq"].attrs["rows_appended"]) == (20, 20)
+        assert list(f["streams/daq/time"][:]) == list(np.arange(20.0))
+
+
+def test_disk_filling_refuses_new_rows_at_append(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rows are accepted only while they and the reserve fit: a refused append is not counted."""
+    rec = make_recorder(tmp_path)
+    key = rec.add_stream("daq", [Column("v", "V")])
+    rec.start()
+    rec.append(key, np.arange(5.0), v=np.ones(5))
+    real = shutil.disk_usage
+    monkeypatch.setattr(writer_mod.shutil, "disk_usage", lambda p: real(p)._replace(free=600_000))
+    with pytest.raises(RecorderError, match="disk nearly full: 0.6 MB free"):
+        rec.append(key, np.arange(5.0, 10.0), v=np.ones(5))
+    assert rec.rows_written(key) == 5
+    rec.close("aborted", "disk nearly full")
+    with h5py.File(rec.path, "r") as f:
+        assert (f["streams/daq"].attrs["rows"], f["streams/daq"].attrs["rows_appended"]) == (5, 5)
 
 
 # ---- damaged files ---------------------------------------------------------------------------------

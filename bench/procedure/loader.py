@@ -24,7 +24,7 @@ from bench.procedure.limits import check_step_limits
 from bench.procedure.schema import BLOCK_TYPES, SCHEMA_ID, STEP_TYPES, FieldSpec
 from bench.procedure.signals import DEFAULT_KINDS, signal_units
 from bench.units import TEMPERATURE_DIFFERENCE, to_units
-from bench.yamlsrc import Fields, Node, Source, load_yaml, parse_yaml
+from bench.yamlsrc import MAX_FLOAT, Fields, Node, Source, load_yaml, parse_yaml
 
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 VAR_RE = re.compile(r"^\$\{?([A-Za-z_][A-Za-z0-9_]*)\}?$")
@@ -206,9 +206,26 @@ def _override_value(text: str) -> Any:
     """A ``-p NAME=VALUE`` value: YAML scalar rules (numbers, booleans, lists), else the text."""
     try:
         value = yaml.safe_load(text)
-    except yaml.YAMLError:
+    except (yaml.YAMLError, ValueError, RecursionError):  # ValueError: an integer of > 4300 digits
         return text
-    return value if isinstance(value, (int, float, str, bool, list, dict)) else text
+    ok = isinstance(value, (int, float, str, bool, list, dict)) and _plain_value(value, [1000])
+    return value if ok else text
+
+
+def _plain_value(value: Any, budget: list[int], depth: int = 0) -> bool:
+    """Whether a ``-p`` value is plain data the schema can check: scalars (numbers within float
+    range), lists and mappings of them, not nested deeper than 20 (which also stops a self-referring
+    alias) and of at most ``budget`` values."""
+    budget[0] -= 1
+    if budget[0] < 0 or depth > 20:
+        return False
+    if isinstance(value, list):
+        return all(_plain_value(v, budget, depth + 1) for v in value)
+    if isinstance(value, dict):
+        return all(_plain_value(v, budget, depth + 1) for v in value.values())
+    if isinstance(value, int) and not isinstance(value, bool):
+        return abs(value) <= MAX_FLOAT
+    return isinstance(value, (str, float, bool, type(None)))
 
 
 # ---- expansion ----------------------------------------------------------------------------------
@@ -366,7 +383,10 @@ class _Expander:
         if not isinstance(node.value, str):
             self.errors.append(InputError("expected the path of a vibration file", node.location, fname))
             return None
-        path = (doc.src.path.parent / node.value).resolve()
+        path = _resolve(doc, node.value)
+        if path is None:
+            self.errors.append(InputError("expected a file name without NUL characters", node.location, fname))
+            return None
         try:
             load_vibration(path)
         except InputError as exc:
@@ -480,8 +500,11 @@ class _Expander:
         f.check_unknown()
         if rel is None:
             return
-        target = (doc.src.path.parent / rel).resolve()
         ploc = f.map["procedure"].location
+        target = _resolve(doc, rel)
+        if target is None:
+            self.errors.append(InputError("expected a file name without NUL characters", ploc, "procedure"))
+            return
         if target in self._call_stack or depth >= MAX_CALL_DEPTH:
             self.errors.append(InputError(f"call of {rel} would recurse ({' -> '.join(p.name for p in self._call_stack)} -> {target.name})", ploc, "procedure"))
             return
@@ -649,6 +672,14 @@ class _Expander:
                 return [start * (stop / start) ** (i / max(count - 1, 1)) for i in range(count)]
             return [start + (stop - start) * i / max(count - 1, 1) for i in range(count)]
         self.errors.append(InputError("expected a list of rates or {from, to, count, spacing}", n.location, "rates"))
+        return None
+
+
+def _resolve(doc: _Doc, rel: str) -> Path | None:
+    """``rel`` relative to the directory of ``doc``'s file, absolute; None for a name no file can have."""
+    try:
+        return (doc.src.path.parent / rel).resolve()
+    except (OSError, ValueError):  # ValueError: embedded NUL byte
         return None
 
 

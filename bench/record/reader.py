@@ -205,6 +205,9 @@ def _open_h5(path: Path) -> tuple[h5py.File, str]:
                 continue
             if "truncated file" in text:
                 truncated = exc
+                if _cut_global_heap_loops(path, size):
+                    raise _unreadable(path, f"{_describe(exc)}, inside an HDF5 global heap collection (where the "
+                                            "text attributes are) that HDF5 cannot read without looping forever") from None
                 break
             if "already open for write" in text:
                 break
@@ -223,6 +226,45 @@ def _open_h5(path: Path) -> tuple[h5py.File, str]:
         return h5py.File(path, "r", locking=False), ""
     except Exception as exc:  # noqa: BLE001
         raise _unreadable(path, _describe(exc)) from None
+
+
+_GCOL_SCAN_BYTES = 1 << 20
+
+
+def _cut_global_heap_loops(path: Path, size: int) -> bool:
+    """Whether a global heap collection runs past the end of the truncated file at ``path`` such that
+    HDF5 would hang reading it.
+
+    HDF5 reads the missing bytes of a truncated file as zeros, and its global heap parser
+    (``H5HG__cache_heap_deserialize``, HDF5 2.0) never advances past a zeroed object header
+    (index 0, size 0): reading any variable-length string of that collection then loops forever.
+    The collections that may reach past the end start in the last ``_GCOL_SCAN_BYTES`` (collections
+    are 4 KiB unless a single string is longer); each one found there is walked as HDF5 walks it.
+    """
+    start = max(0, size - _GCOL_SCAN_BYTES)
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(start)
+            tail = fh.read()
+    except OSError:
+        return False
+    pos = tail.find(b"GCOL")
+    while pos >= 0:
+        header = tail[pos:pos + 16].ljust(16, b"\0")  # signature, version 1, 3 reserved, size (8 bytes)
+        if header[4] == 1:
+            end = pos + int.from_bytes(header[8:16], "little")
+            if end > len(tail):
+                body = tail[pos:end] + bytes(min(end - len(tail), _GCOL_SCAN_BYTES))
+                obj = 16
+                while obj + 16 <= len(body):
+                    index = int.from_bytes(body[obj:obj + 2], "little")
+                    length = int.from_bytes(body[obj + 8:obj + 16], "little")
+                    need = length if index == 0 else 16 + (length + 7) // 8 * 8
+                    if need == 0:
+                        return True
+                    obj += need
+        pos = tail.find(b"GCOL", pos + 1)
+    return False
 
 
 SWMR_READ_ATTEMPTS = 26

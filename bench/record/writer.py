@@ -45,7 +45,7 @@ FORMAT_VERSION = 1
 SPACE_MARGIN_BYTES = 50 * 1024 * 1024
 """Free space (bytes) required on top of the estimated run-file size."""
 
-MODES = ("sim", "hardware", "replay")
+MODES = ("sim", "hardware", "replay", "imported")
 STATUSES_FINAL = ("completed", "aborted", "failed")
 
 EVENT_DTYPE = np.dtype(
@@ -180,6 +180,8 @@ class RunRecorder:
         self._started = False
         self._state = "open"  # open | released (SWMR file closed, status not final) | closed
         self._failure = ""  # reason of the first failed or refused write; no writes after it
+        self.free_bytes: Callable[[Path], int] = lambda d: shutil.disk_usage(d).free
+        """Free space (bytes) of a directory; a seam for fault injection (``disk_full``)."""
         self._broken = False  # an HDF5 write failed: handles abandoned, status cannot be finalised
         self._events: list[tuple] = []
         self._blob_pending = bytearray()
@@ -409,6 +411,15 @@ class RunRecorder:
             st.pending[name].append(a)
         st.pending_rows += n
         st.pending_bytes += n * st.row_bytes
+        if self._started:
+            try:
+                self._check_space()  # accept rows only while they (and the reserve) fit: nothing accepted is lost
+            except RecorderError:
+                for name in batch:
+                    st.pending[name].pop()
+                st.pending_rows -= n
+                st.pending_bytes -= n * st.row_bytes
+                raise
         st.appended += n
         if n and np.isfinite(batch["time"][-1]):
             self._run_time_s = max(self._run_time_s, float(batch["time"][-1]))
@@ -630,7 +641,15 @@ class RunRecorder:
         self._f = None
 
     def _flush_events_only(self) -> None:
-        """After a refused flush: write the buffered events (small: the abort story) if they fit."""
+        """After a refused flush: write the rows accepted before the refusal when they fit in the
+        space the refusal kept in reserve (a flush is refused while less than RESERVE_BYTES would
+        remain, so they normally do: nothing accepted is lost), then the buffered events (small:
+        the abort story) if they fit."""
+        rows_need = self._rows_need()
+        if any(st.pending_rows for st in self._streams.values()) and not self._space_problem(RESERVE_BYTES // 4 + rows_need + self._events_need()):
+            with self._io():
+                for st in self._streams.values():
+                    self._write_stream(st)
         for st in self._streams.values():
             for parts in st.pending.values():
                 parts.clear()
@@ -644,6 +663,15 @@ class RunRecorder:
             self._heartbeat_ds[...] = np.array([time.time(), self._run_time_s])
             self._file().flush()
 
+    def _rows_need(self) -> int:
+        """Bytes of new chunks writing the buffered stream rows allocates."""
+        need = 0
+        for st in self._streams.values():
+            if st.pending_rows:
+                for name in st.datasets:
+                    need += _new_chunks(st.chunk_rows[name], st.on_disk, st.pending_rows) * st.chunk_bytes[name]
+        return need
+
     def _events_need(self) -> int:
         """Bytes of new chunks writing the buffered events allocates."""
         need = _new_chunks(EVENT_CHUNK_ROWS, self._events_on_disk, len(self._events)) * EVENT_CHUNK_ROWS * EVENT_DTYPE.itemsize
@@ -653,7 +681,7 @@ class RunRecorder:
     def _space_problem(self, need: int) -> str:
         """Why ``need`` more bytes might not fit in the file (free space, ``ulimit -f``), or ""."""
         try:
-            free = shutil.disk_usage(self.path.parent).free
+            free = self.free_bytes(self.path.parent)
         except OSError:
             free = None
         if free is not None and free < need:
@@ -672,6 +700,10 @@ class RunRecorder:
                     )
         return ""
 
+    def space_needed(self) -> int:
+        """Bytes the next flush may allocate plus the reserve kept for finalising (bytes)."""
+        return RESERVE_BYTES + self._events_need() + self._rows_need()
+
     def _check_space(self) -> None:
         """Refuse a flush that might not fit on the disk or under the file-size limit (``ulimit -f``).
 
@@ -680,11 +712,7 @@ class RunRecorder:
         of the chunks the flush allocates (HDF5 allocates whole chunks) plus 1 MiB for metadata
         and finalising.
         """
-        need = RESERVE_BYTES + self._events_need()
-        for st in self._streams.values():
-            if st.pending_rows:
-                for name in st.datasets:
-                    need += _new_chunks(st.chunk_rows[name], st.on_disk, st.pending_rows) * st.chunk_bytes[name]
+        need = self.space_needed()
         problem = self._space_problem(need)
         if problem:
             self._failure = f"{problem}; recording stopped while the file is still consistent"

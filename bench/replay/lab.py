@@ -122,6 +122,8 @@ def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: s
         instruments: dict[str, Any] = {}
         lab = Lab(clock, mode, instruments, ports, {}, {n: config.instruments[n].poll_interval_s for n in names},
                   world if mode == "sim" else None)
+        lab.kinds = {n: config.instruments[n].driver for n in names}
+        lab.config_limits = config.limits()
         rl = ReplayLab(lab, backends, registered, prelude)
         if not prelude:
             rl.go_live()

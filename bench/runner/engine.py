@@ -45,6 +45,12 @@ ACS_COLUMNS = [
 RECONNECT_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
 """Waits between reconnection attempts after a link fault (s of run time); the last repeats."""
 
+CHAMBER_SAFETY_MARGIN_C = 5.0
+"""A chamber temperature reading more than this beyond the chamber's set-point limits (defaults, lab
+config, procedure: the narrowest) aborts the run whatever the procedure's interlocks say: the
+controller is not controlling (runaway heater or cooler, failed sensor). Our choice [U]: above the
+overshoot of a controlled ramp, below damage."""
+
 POLL_PERIOD_VIRTUAL_S = 5.0  # run time between stream polls in a dry-run (s): 500 frames per batch at 100 Hz
 POLL_PERIOD_WALL_S = 0.1  # on the wall clock: keeps abort latency and progress updates short
 
@@ -212,7 +218,7 @@ class Runner:
             self.flush_notices()
             self.progress.stop(self.clock.now())
         run_time = self.clock.now()
-        self._close(status)
+        status = self._close(status)
         rows = {name: self.rec.rows_written(key) for name, key in {**self.stream_keys, **self.monitor_keys}.items()}
         return RunResult(status, self.abort_reason, self.outcomes, run_time, time.monotonic() - wall0, rows, self.stream_stats,
                          list(self.results.values()))
@@ -225,16 +231,32 @@ class Runner:
             self._event("step_end", step.type, f"aborted: {self.abort_reason}", step=step.index)
         self._event("abort", "runner", self.abort_reason)
         self.progress.message(f"aborting: {self.abort_reason}; bringing instruments to their safe state")
-        for name, drv in self.lab.instruments.items():
+        self.progress.advance(t, "aborting")
+        for name in list(self.lab.instruments):
             self.flush_notices()
             try:
-                drv.safe_state()
-                if name in self.stream_keys:
-                    self._drain(name)
-                self._event("safe_state", name, "streaming stopped" if name in self.stream_keys else "safe state reached")
+                self._safe_state(name)
             except Exception as exc:  # noqa: BLE001 - the abort path must reach every instrument and the file
                 self._event("error", name, f"safe state failed: {_describe(exc)}")
                 self.progress.message(f"{name}: safe state failed: {_describe(exc)}")
+                continue
+            self._event("safe_state", name, "streaming stopped" if name in self.stream_keys else "safe state reached")
+            if name in self.stream_keys:
+                try:
+                    self._drain(name)  # salvage the last frames; the instrument is already safe
+                except Exception as exc:  # noqa: BLE001
+                    self._event("error", name, f"last frames not read: {_describe(exc)}")
+
+    def _safe_state(self, name: str) -> None:
+        """Bring ``name`` to its safe state; a link fault is retried through a reconnection (within
+        the instrument's ``reconnect_timeout``), as the safe state matters most when links fail."""
+        try:
+            self.lab.instruments[name].safe_state()
+        except DeviceFault:
+            raise
+        except (InstrumentError, OSError) as exc:
+            self._reconnect(name, exc, aborting=True)
+            self.lab.instruments[name].safe_state()
         self.streaming.clear()
 
     def _event(self, kind: str, source: str, message: str, step: int = -1) -> None:
@@ -244,7 +266,8 @@ class Runner:
         except (RecorderError, OSError, ValueError):
             pass
 
-    def _close(self, status: str) -> None:
+    def _close(self, status: str) -> str:
+        """Finalise the run file; returns the status it was closed with."""
         try:
             self.rec.event("run_end", "runner", status if not self.abort_reason else f"{status}: {self.abort_reason}", t_s=self.clock.now())
             self.rec.close(status, self.abort_reason)
@@ -254,7 +277,10 @@ class Runner:
                 self.rec.close("aborted", self.abort_reason)
             except (RecorderError, OSError, ValueError):
                 pass
+            if self.rec.closed:
+                return "aborted"  # finalised as aborted with the recorder's reason (e.g. disk nearly full)
             raise RecorderError(f"the run file could not be finalised: {_describe(exc)}") from None
+        return status
 
     # ---- waiting ----------------------------------------------------------------------------
     def wait_until(self, timeout_s: float, condition: Callable[[], bool] | None = None) -> bool:
@@ -358,6 +384,7 @@ class Runner:
             for col, v in values.items():
                 self.windows.feed_one(f"{name}.{col}", t, float(v))
         self._check_interlocks(name)
+        self._check_lab_safety(name, values)
 
     # ---- link faults ------------------------------------------------------------------------
     def _guarded(self, name: str, read: Callable[[], object]) -> None:
@@ -372,14 +399,15 @@ class Runner:
             self._reconnect(name, exc)
             read()
 
-    def _reconnect(self, name: str, exc: BaseException) -> None:
+    def _reconnect(self, name: str, exc: BaseException, aborting: bool = False) -> None:
         t0 = self.clock.now()
         limit = self.lab.reconnect_timeouts.get(name, 30.0)
         self.rec.event("fault", name, f"link fault: {_describe(exc)}; reconnecting (up to {limit:g} s)", t_s=t0, step=self.current_step)
         self.progress.message(f"{name}: link fault ({_describe(exc)}); reconnecting")
         attempt, last = 0, exc
         while True:
-            self._check_abort()
+            if not aborting:
+                self._check_abort()
             wait = RECONNECT_BACKOFF_S[min(attempt, len(RECONNECT_BACKOFF_S) - 1)]
             if self.clock.now() - t0 + wait > limit:
                 raise InstrumentError(f"{name}: link lost ({_describe(last)}); not restored within {limit:g} s")
@@ -391,7 +419,7 @@ class Runner:
                 drv.identify()
                 if name in self.monitor_keys:
                     drv.monitor_columns()  # a fresh driver sets its instrument up again (thermocouple scan list)
-                if name in self.streaming and not drv.get_config()["streaming"]:
+                if not aborting and name in self.streaming and not drv.get_config()["streaming"]:
                     drv.start_stream()
                 break
             except DeviceFault:
@@ -420,6 +448,24 @@ class Runner:
             if (lock.minimum is not None and v < lock.minimum) or (lock.maximum is not None and v > lock.maximum):
                 lim = f"min {lock.minimum:g}" if lock.minimum is not None and v < lock.minimum else f"max {lock.maximum:g}"
                 self._trip(f"interlock {lock.name!r}: {lock.signal} = {v:.4g} beyond {lim}", lock)
+
+    def _check_lab_safety(self, inst: str, values: dict[str, float]) -> None:
+        """Always-on limits of the lab, independent of the procedure's interlocks: the chamber's
+        air and mount temperatures stay within its set-point limits ± CHAMBER_SAFETY_MARGIN_C."""
+        if self.lab.kinds.get(inst) != "tvac":
+            return
+        from bench.procedure.limits import effective_limits
+
+        lo, hi, src = effective_limits("tvac", self.lab.config_limits.get(inst, {}), self.procedure.limits.get(inst, {}))["set_point"]
+        for col in ("air_temp", "mount_temp"):
+            v = values.get(col)
+            if v is None or math.isnan(v):
+                continue
+            if (lo is not None and v < lo - CHAMBER_SAFETY_MARGIN_C) or (hi is not None and v > hi + CHAMBER_SAFETY_MARGIN_C):
+                reason = (f"lab safety: {inst}.{col} = {v:.1f} degC beyond the chamber limits "
+                          f"{lo:g}..{hi:g} degC ({src}) by more than {CHAMBER_SAFETY_MARGIN_C:g} degC: the chamber is not under control")
+                self.request_abort(reason)
+                raise InterlockTrip(reason)
 
     def _check_stalls(self, t: float) -> None:
         for lock in self.procedure.interlocks:

@@ -104,7 +104,7 @@ def set_temperature(r: "Runner", step: Step) -> tuple[str, str]:
     sig = f"{p['instrument']}.air_temp"
     ok = r.wait_until(p["timeout"], lambda: abs(r.read_signal(sig) - p["set_point"]) <= p["band"])
     if not ok:
-        raise StepAbort(f"chamber air did not reach {p['set_point']:g} degC ± {p['band']:g} within {p['timeout']:g} s (now {r.read_signal(sig):.1f} degC)")
+        raise StepAbort(f"{p['instrument']}: chamber air did not reach {p['set_point']:g} degC ± {p['band']:g} within {p['timeout']:g} s (now {r.read_signal(sig):.1f} degC)")
     return "done", f"{what}; reached ({r.read_signal(sig):.1f} degC)"
 
 
@@ -113,7 +113,7 @@ def pump_down(r: "Runner", step: Step) -> tuple[str, str]:
     r.lab.instruments[p["instrument"]].pump_down()
     sig = f"{p['instrument']}.pressure"
     if not r.wait_until(p["timeout"], lambda: r.read_signal(sig) <= p["pressure"]):
-        raise StepAbort(f"pressure did not fall to {p['pressure']:g} Torr within {p['timeout']:g} s (now {r.read_signal(sig):.3g} Torr)")
+        raise StepAbort(f"{p['instrument']}: pressure did not fall to {p['pressure']:g} Torr within {p['timeout']:g} s (now {r.read_signal(sig):.3g} Torr)")
     r.in_vacuum = True
     return "done", f"{r.read_signal(sig):.3g} Torr"
 
@@ -124,7 +124,7 @@ def vent(r: "Runner", step: Step) -> tuple[str, str]:
     r.lab.instruments[p["instrument"]].vent()
     sig = f"{p['instrument']}.pressure"
     if not r.wait_until(p["timeout"], lambda: r.read_signal(sig) >= p["pressure"]):
-        raise StepAbort(f"pressure did not rise to {p['pressure']:g} Torr within {p['timeout']:g} s")
+        raise StepAbort(f"{p['instrument']}: pressure did not rise to {p['pressure']:g} Torr within {p['timeout']:g} s")
     return "done", f"{r.read_signal(sig):.3g} Torr"
 
 
@@ -170,7 +170,7 @@ def table_rate(r: "Runner", step: Step) -> tuple[str, str]:
     actual = drv.set_rate(p["rate"], p.get("accel"))
     sig = f"{p['instrument']}.rate"
     if not r.wait_until(MOTION_TIMEOUT_S, lambda: abs(r.read_signal(sig, fresh=True) - actual) <= RATE_TOLERANCE_DPS):
-        raise StepAbort(f"table did not reach {actual:g} deg/s within {MOTION_TIMEOUT_S:g} s")
+        raise StepAbort(f"{p['instrument']}: table did not reach {actual:g} deg/s within {MOTION_TIMEOUT_S:g} s")
     if p.get("settle"):
         r.wait_until(p["settle"])
     return "done", f"{actual:+g} deg/s"

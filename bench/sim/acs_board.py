@@ -8,6 +8,11 @@ when they arrive (:meth:`receive`), after the data frames that precede them in t
 Behaviour (``docs/acs-board-protocol.md``): the board powers up with sensors off, not streaming,
 100 Hz output data rate and moving-average length 1. The moving-average buffer is pre-filled with
 the first sample after sensor power-on or a length change (ESTCube-2 thesis section 3.3).
+
+Sensor model: :class:`SimpleImuModel` (``model: imu_simple``, the default) or, for a model file
+with ``model: npsat1_gyro``, :class:`GyroBoardModel`: the gyro of :mod:`bench.model.gyro` (NPSAT1
+Eq. 1-3 with temperature, pressure, power-on time and stateful noise) and the simple model's
+accelerometer and magnetometer (:func:`board_model_from_file`, docs/sensor-models.md).
 """
 
 from __future__ import annotations
@@ -17,16 +22,22 @@ import math
 import struct
 import threading
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from bench import __version__
-from bench.model.imu_simple import SimpleImuModel
+from bench.errors import InputError
+from bench.model.gyro import GyroModel
+from bench.model.imu_simple import Environment, ImuModelParams, SimpleImuModel
+from bench.model.inputs import SensorInputs
 from bench.sim.world import World
 from drivers import acs_protocol as proto
 from drivers.acs_protocol import FrameType, NakCode, Status
 
 BOARD_TIME_WRAP = 2**32
+PRESSURE_STEP_S = 10.0
+"""Largest spacing (s) of the chamber-pressure samples interpolated for the gyro model."""
 
 
 @dataclass
@@ -37,6 +48,49 @@ class AcsBoardIdentity:
     firmware: str = f"sim-{__version__}"
 
 
+class GyroBoardModel:
+    """Board sensors with the gyro of a :class:`GyroModel`, accelerometer and magnetometer of a
+    :class:`SimpleImuModel` (whose parameters also give the board's low-pass cut-off, ``p``).
+
+    The gyro model must have output path ``none``: the board quantises and averages itself
+    (:func:`drivers.acs_protocol.physical_to_raw`, :meth:`AcsBoardSim._moving_average`). Its
+    noise state carries over between batches; a drop of the time since power-on is a power cycle
+    (new run-to-run bias)."""
+
+    def __init__(self, gyro: GyroModel, imu: SimpleImuModel):
+        if gyro.p.output != "none":
+            raise ValueError("the board's gyro model must have output 'none' (the board quantises itself)")
+        self.gyro = gyro
+        self.imu = imu
+        self.p = imu.p
+
+    def sample(
+        self, since_power_s: np.ndarray, temp_c: np.ndarray, env: Environment, odr_hz: float, *,
+        t_s: np.ndarray, pressure_torr: np.ndarray | float | None = None, table_angle_deg: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gyro (deg/s), accelerometer (g), magnetometer (µT) outputs (n, 3) before quantisation at
+        run times ``t_s`` (s); ``env`` rate includes Earth rate (the world's)."""
+        _, accel, mag = self.imu.sample(since_power_s, temp_c, env, odr_hz)
+        inputs = SensorInputs(time_s=t_s, rate_dps=env.rate_dps, temp_c=temp_c, pressure_torr=pressure_torr,
+                              power_on_s=since_power_s, specific_force_g=env.specific_force_g, table_angle_deg=table_angle_deg)
+        return self.gyro.evaluate(inputs), accel, mag
+
+
+def board_model_from_file(path: str | Path, rng: np.random.Generator) -> SimpleImuModel | GyroBoardModel:
+    """The board's sensor model from a model file (``configs/sensors/*.yaml``): ``imu_simple`` →
+    :class:`SimpleImuModel`; ``npsat1_gyro`` → :class:`GyroBoardModel` (gyro output path forced to
+    ``none``; accelerometer and magnetometer with the :class:`ImuModelParams` defaults). Raises a
+    located :class:`InputError` for a bad file or a model that cannot drive the board."""
+    from bench.model.loader import load_sensor_model
+
+    spec = load_sensor_model(path)
+    if spec.imu is not None:
+        return SimpleImuModel(spec.imu, rng)
+    if spec.gyro is not None:
+        return GyroBoardModel(spec.gyro_model(rng, output="none"), SimpleImuModel(ImuModelParams(), rng))
+    raise InputError(f"model {spec.model!r} cannot drive the ACS board (expected imu_simple or npsat1_gyro)", spec.location, "model")
+
+
 class AcsBoardSim:
     """The board: protocol state machine plus sensor sampling. Thread-safe (one lock)."""
 
@@ -44,7 +98,7 @@ class AcsBoardSim:
         self,
         clock,
         world: World,
-        model: SimpleImuModel,
+        model: SimpleImuModel | GyroBoardModel,
         identity: AcsBoardIdentity | None = None,
         baudrate: int = 115200,
         bit_fail_mask: int = 0,
@@ -192,7 +246,12 @@ class AcsBoardSim:
             # the shaker is bolted to the fixture: its acceleration is already in the unit's frame
             vib = self.world.vibration.specific_force_g(t, lowpass_hz=self.model.p.lowpass_cutoff_hz)
             env = dataclasses.replace(env, specific_force_g=np.broadcast_to(env.specific_force_g, vib.shape) + vib)
-        gyro, accel, mag = self.model.sample(t - self.power_on_t, temp, env, self.odr_hz)
+        if isinstance(self.model, GyroBoardModel):
+            table_deg = self.world.stage.angle_deg(t) + self.world.table.rotation.angle_deg(t)
+            gyro, accel, mag = self.model.sample(t - self.power_on_t, temp, env, self.odr_hz, t_s=t,
+                                                 pressure_torr=self._pressure_torr(t), table_angle_deg=table_deg)
+        else:
+            gyro, accel, mag = self.model.sample(t - self.power_on_t, temp, env, self.odr_hz)
         raw = np.concatenate([gyro, accel, mag], axis=1)
         raw = self._moving_average(raw)
         temps = np.repeat(temp[:, None], 3, axis=1)
@@ -206,6 +265,16 @@ class AcsBoardSim:
         board_us = (np.round(t * 1e6).astype(np.int64) % BOARD_TIME_WRAP).astype(np.uint32)
         self.frames_sent += n
         return proto.encode_data_frames(counter, board_us, gyro_raw, accel_raw, mag_raw, temp_raw, status)
+
+    def _pressure_torr(self, t: np.ndarray) -> np.ndarray:
+        """Chamber pressure (Torr) at sample times ``t``: the chamber answers one time at a time,
+        so it is sampled every PRESSURE_STEP_S at most and interpolated."""
+        chamber = self.world.chamber
+        span = float(t[-1] - t[0])
+        if span <= PRESSURE_STEP_S:
+            return np.full(t.shape[0], chamber.pressure_torr(float(t[-1])))
+        grid = np.linspace(float(t[0]), float(t[-1]), int(span / PRESSURE_STEP_S) + 2)
+        return np.interp(t, grid, [chamber.pressure_torr(float(x)) for x in grid])
 
     def _moving_average(self, raw: np.ndarray) -> np.ndarray:
         """N-sample boxcar over consecutive samples, buffer pre-filled with the first sample."""

@@ -1,0 +1,255 @@
+"""Measured data for the analysis commands: one table of named columns with units in the names.
+
+Every analysis (``bench calibrate``, ``bench diagnose``, ``bench report``) takes a :class:`Dataset`,
+loaded by :func:`load_dataset` from either
+
+* a measured-data CSV (``docs/analysis.md``): optional leading ``# key: value`` lines (metadata such
+  as ``sample_rate_hz``, ``latitude_deg``), one header row, numeric rows; known columns are
+  :data:`COLUMNS`; ``time_s`` and at least one gyro column are required, extra columns are ignored;
+  or
+* a bench run file (``.h5``): the ACS board stream gives time, gyro, accelerometer and temperature;
+  the rate-table, chamber and thermocouple monitors are interpolated onto the board's sample times.
+
+Units are those in the column names: s, deg/s, deg, °C, Torr, g.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench.csvsrc import numeric_columns, read_csv_table
+from bench.errors import InputError, Location
+
+COLUMNS: dict[str, str] = {
+    "time_s": "sample time (s)",
+    "power_on_s": "time since the sensor was powered on (s)",
+    "ref_rate_x_dps": "reference (true) rate about sensor x (deg/s)",
+    "ref_rate_y_dps": "reference (true) rate about sensor y (deg/s)",
+    "ref_rate_z_dps": "reference (true) rate about sensor z (deg/s)",
+    "table_angle_deg": "rate-table (or bench) angle (deg)",
+    "temp_c": "sensor temperature channel (°C)",
+    "chamber_temp_c": "chamber temperature (°C)",
+    "pressure_torr": "chamber pressure (Torr)",
+    "accel_x_g": "specific force along sensor x (g)",
+    "accel_y_g": "specific force along sensor y (g)",
+    "accel_z_g": "specific force along sensor z (g)",
+    "gyro_x_dps": "gyro output x (deg/s)",
+    "gyro_y_dps": "gyro output y (deg/s)",
+    "gyro_z_dps": "gyro output z (deg/s)",
+}
+"""The measured-data columns the analysis knows, with their meaning and units."""
+
+AXES = ("x", "y", "z")
+GYRO = {a: f"gyro_{a}_dps" for a in AXES}
+REF_RATE = {a: f"ref_rate_{a}_dps" for a in AXES}
+ACCEL = {a: f"accel_{a}_g" for a in AXES}
+
+
+@dataclass
+class Dataset:
+    """Named float columns of equal length (units in the names), ``time_s`` strictly increasing.
+
+    ``meta`` holds the CSV's ``# key: value`` lines (numbers converted to float) or the run file's
+    attributes; ``source`` names where the data came from (for messages and reports);
+    ``line_numbers`` the 1-based CSV line of each row (``None`` for run files).
+    """
+
+    columns: dict[str, np.ndarray]
+    meta: dict[str, float | str] = field(default_factory=dict)
+    source: str = ""
+    line_numbers: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.columns["time_s"].shape[0])
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.columns
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise InputError(f"{self.source}: the analysis needs column {name!r} "
+                             f"(present: {', '.join(self.columns)})") from None
+
+    @property
+    def gyro_axes(self) -> list[str]:
+        """Axes ('x', 'y', 'z') with a gyro column."""
+        return [a for a in AXES if GYRO[a] in self.columns]
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """``sample_rate_hz`` from the metadata, else 1 / median sample interval (Hz)."""
+        if isinstance(self.meta.get("sample_rate_hz"), float):
+            return float(self.meta["sample_rate_hz"])
+        t = self.columns["time_s"]
+        return 1.0 / float(np.median(np.diff(t))) if t.shape[0] > 1 else float("nan")
+
+    def latitude_deg(self, default: float | None = None) -> float | None:
+        """``latitude_deg`` from the metadata (deg), else ``default``."""
+        v = self.meta.get("latitude_deg")
+        return float(v) if isinstance(v, float) else default
+
+    def select(self, mask: np.ndarray) -> "Dataset":
+        """The rows where ``mask`` is true (a boolean array or index array)."""
+        lines = None if self.line_numbers is None else self.line_numbers[mask]
+        return Dataset({k: v[mask] for k, v in self.columns.items()}, dict(self.meta), self.source, lines)
+
+
+def load_dataset(path: str | Path) -> Dataset:
+    """A run file (``.h5``/``.hdf5``, or any file starting with the HDF5 signature) or a measured-data
+    CSV as a :class:`Dataset`. Bad files raise :class:`InputError` with file:line and the reason."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError("data file not found", Location(p))
+    if p.suffix.lower() in (".h5", ".hdf5") or _is_hdf5(p):
+        return dataset_from_run(p)
+    return dataset_from_csv(p)
+
+
+def _is_hdf5(p: Path) -> bool:
+    try:
+        with open(p, "rb") as fh:
+            return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
+
+
+# ---- CSV ----------------------------------------------------------------------------------------
+def dataset_from_csv(path: str | Path) -> Dataset:
+    """Load a measured-data CSV (see module docstring); :class:`InputError` names file:line and column."""
+    table = read_csv_table(path)
+    where = Location(table.path, table.header_line)
+    present = [c for c in COLUMNS if c in table.header]
+    if "time_s" not in present:
+        raise InputError(f"missing required column (header has: {', '.join(table.header) or 'nothing'})", where, "time_s")
+    if not any(GYRO[a] in present for a in AXES):
+        raise InputError("expected at least one gyro column (gyro_x_dps, gyro_y_dps or gyro_z_dps)", where)
+    if not table.rows:
+        raise InputError("no data rows after the header", where)
+    values = numeric_columns(table, present)
+    t = values["time_s"]
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise InputError(f"time must increase from row to row: {float(t[i])!r} s follows {float(t[i - 1])!r} s",
+                         Location(table.path, table.lines[i]), "time_s")
+    meta: dict[str, float | str] = {}
+    for key, text in table.meta.items():
+        try:
+            num = float(text)
+            meta[key] = num if math.isfinite(num) else text
+        except ValueError:
+            meta[key] = text
+    return Dataset(values, meta, str(table.path), np.array(table.lines, dtype=np.int64))
+
+
+# ---- run files ----------------------------------------------------------------------------------
+_MOUNT_PROMPT = re.compile(r"Mount the unit with its ([+-]?[xyz]) axis along the table")
+
+
+def dataset_from_run(path: str | Path) -> Dataset:
+    """The ACS board stream of a run file with the other instruments' monitors interpolated onto it.
+
+    Columns: ``time_s`` (run time), ``gyro_*_dps``, ``accel_*_g``, ``temp_c`` (the board's first
+    temperature channel, the gyro's), ``power_on_s`` (since the first board sample), and when
+    recorded: ``ref_rate_*_dps`` (rate-table rate about the platter normal turned into the sensor
+    frame by the unit's mount, taken from the run's mount prompts; +z up when none),
+    ``table_angle_deg``, ``chamber_temp_c`` (chamber air), ``pressure_torr`` (log-interpolated).
+    """
+    from bench.record.reader import read_run_summary, read_stream
+    from bench.sim.world import mount_matrix
+
+    p = Path(path)
+    summary = read_run_summary(p)
+    streams = {s.key for s in summary.streams}
+    if "imported" in streams:
+        return _dataset_from_import(p, summary, read_stream(p, "imported"))
+    if "acs_board" not in streams:
+        raise InputError(f"{p}: no ACS board stream in this run (streams: {', '.join(sorted(streams)) or 'none'}); "
+                         "the analysis needs the sensor outputs")
+    board = read_stream(p, "acs_board")
+    t = np.asarray(board["time"], dtype=float)
+    keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
+    t = t[keep]
+    cols: dict[str, np.ndarray] = {"time_s": t}
+    gyro = np.asarray(board["gyro"], dtype=float)[keep]
+    accel = np.asarray(board["accel"], dtype=float)[keep]
+    for k, a in enumerate(AXES):
+        cols[GYRO[a]] = gyro[:, k]
+        cols[ACCEL[a]] = accel[:, k]
+    cols["temp_c"] = np.asarray(board["temp"], dtype=float)[keep][:, 0]
+    cols["power_on_s"] = t - (t[0] if t.size else 0.0)
+
+    if "rate_table/monitor" in streams and t.size:
+        mon = read_stream(p, "rate_table/monitor")
+        tm = np.asarray(mon["time"], dtype=float)
+        rate = _interp(t, tm, np.asarray(mon["rate"], dtype=float))
+        ups = [(e.t_s, m.group(1)) for e in summary.events if (m := _MOUNT_PROMPT.search(e.message))]
+        ref = np.zeros((t.size, 3))
+        for i, (t0, up) in enumerate(ups or [(-math.inf, "z")]):
+            t1 = ups[i + 1][0] if i + 1 < len(ups) else math.inf
+            sel = (t >= t0) & (t < t1) if ups else np.ones(t.size, bool)
+            ref[sel] = np.outer(rate[sel], mount_matrix(up)[:, 2])
+        for k, a in enumerate(AXES):
+            cols[REF_RATE[a]] = ref[:, k]
+        cols["table_angle_deg"] = _interp(t, tm, np.asarray(mon["angle"], dtype=float))
+    if "tvac/monitor" in streams and t.size:
+        mon = read_stream(p, "tvac/monitor")
+        tm = np.asarray(mon["time"], dtype=float)
+        cols["chamber_temp_c"] = _interp(t, tm, np.asarray(mon["air_temp"], dtype=float))
+        pressure = np.clip(np.asarray(mon["pressure"], dtype=float), 1e-12, None)
+        cols["pressure_torr"] = np.exp(_interp(t, tm, np.log(pressure)))
+    meta: dict[str, float | str] = {k: v for k, v in summary.attrs.items() if isinstance(v, str)}
+    lat = _latitude_from_config(summary.config_text)
+    if lat is not None:
+        meta["latitude_deg"] = lat
+    return Dataset(cols, meta, str(p))
+
+
+def _dataset_from_import(p: Path, summary, stream: dict[str, np.ndarray]) -> Dataset:
+    """A run file written by ``bench import``: the CSV's columns and metadata as they were."""
+    import json
+
+    cols = {"time_s": np.asarray(stream["time"], dtype=float)}
+    cols.update({k: np.asarray(v, dtype=float) for k, v in stream.items() if k in COLUMNS and k != "time_s"})
+    meta: dict[str, float | str] = {}
+    for e in summary.events:
+        if e.kind == "note" and e.source == "import":
+            try:
+                meta = {k: v for k, v in json.loads(e.message).get("meta", {}).items() if isinstance(v, (float, int, str))}
+            except (ValueError, AttributeError):
+                meta = {}
+    meta = {k: float(v) if isinstance(v, int) else v for k, v in meta.items()}
+    return Dataset(cols, meta, str(p))
+
+
+def _interp(t: np.ndarray, tm: np.ndarray, v: np.ndarray) -> np.ndarray:
+    if tm.size == 0:
+        return np.full(t.shape, np.nan)
+    return np.interp(t, tm, v)
+
+
+def _latitude_from_config(text: str | None) -> float | None:
+    if not text:
+        return None
+    import yaml
+
+    try:
+        data = yaml.safe_load(text)
+        lat = (data.get("world") or {}).get("latitude")
+    except (yaml.YAMLError, AttributeError):
+        return None
+    if lat is None:
+        return None
+    from bench.units import to_units
+
+    try:
+        return float(to_units(lat, "deg")) if isinstance(lat, str) else float(lat)
+    except Exception:  # noqa: BLE001 - a latitude we cannot parse is simply unknown
+        return None

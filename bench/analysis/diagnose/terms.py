@@ -1,0 +1,471 @@
+"""Candidate causes as regressors: for each vocabulary term, which data it needs, where it can be
+seen, its grid of nonlinear parameters and its design columns (or fixed offsets) for given ones.
+
+The columns are built with the same helpers as the forward model (``bench/model/effects.py``), so
+a fitted term re-simulated is the same function. Coefficients of the columns are the physical
+parameters (deg/s, deg/s per °C^k, fraction, deg/s/g) when the columns are unscaled.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from bench.analysis.diagnose.data import Prepared
+from bench.model import effects as fx
+from bench.model.effects import T_REF_C
+
+AXES = ("x", "y", "z")
+
+
+@dataclass
+class Built:
+    """A term's regressors for one choice of its nonlinear parameters.
+
+    ``cols``: axis → (n, q) raw columns with free coefficients; ``offsets``: axis → (n,) fixed
+    contribution (no coefficient); ``penalty``: axis → (q, q) quadratic penalty on the raw
+    coefficients, in SSE units (deg/s)²."""
+
+    cols: dict[str, np.ndarray] = field(default_factory=dict)
+    offsets: dict[str, np.ndarray] = field(default_factory=dict)
+    penalty: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def axes(self) -> list[str]:
+        return sorted(set(self.cols) | set(self.offsets), key=AXES.index)
+
+
+@dataclass
+class Context:
+    """What some candidates need from the current model: residual and its variance per axis."""
+
+    resid: dict[str, np.ndarray]
+    sigma2: dict[str, float]
+
+
+class Candidate:
+    """Base class of a vocabulary term as a candidate cause."""
+
+    name: str = ""
+    shared: bool = False
+    """One parameter set for all axes (earth_rate, time_skew): candidate axis "all"."""
+    nonlinear: tuple[str, ...] = ()
+    """Names of the grid-searched parameters (each counts as one parameter in the criterion)."""
+    refine: tuple[tuple[str, bool], ...] = ()
+    """Continuous nonlinear parameters refined after the grid: (name, log-scale)."""
+    select_by_cv: bool = False
+    """Choose the grid value by held-out error (penalised terms) instead of nested training error."""
+
+    def missing(self, p: Prepared) -> list[str]:
+        """Columns or metadata this term needs that the data lack."""
+        return []
+
+    def candidate_axes(self, p: Prepared) -> list[str]:
+        return ["all"] if self.shared else list(p.axes)
+
+    def not_excited(self, p: Prepared, axis: str) -> str | None:
+        """Why the data cannot show this term on ``axis`` (None: it can)."""
+        return None
+
+    def grid(self, p: Prepared, axis: str, ctx: Context) -> list[dict[str, Any]]:
+        return [{}]
+
+    def build(self, p: Prepared, axis: str, nl: dict[str, Any], ctx: Context) -> Built:
+        raise NotImplementedError
+
+    def params(self, p: Prepared, axis: str, nl: dict[str, Any], coef: dict[str, np.ndarray]) -> dict[str, Any]:
+        """Physical parameters (the effect's ``params``) from nonlinear values and raw coefficients."""
+        raise NotImplementedError
+
+    def describe(self, params: dict[str, Any]) -> str:
+        """A short phrase for the summary line."""
+        return ", ".join(f"{k} {_g(v)}" for k, v in params.items())
+
+
+def _g(v: Any, d: int = 2) -> str:
+    if isinstance(v, float):
+        return f"{v:.{d}g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_g(x, d) for x in v) + "]"
+    return str(v)
+
+
+def _cached(p: Prepared, key: tuple, fn: Callable[[], np.ndarray]) -> np.ndarray:
+    if key not in p.cache:
+        p.cache[key] = fn()
+    return p.cache[key]
+
+
+def _temp_range(p: Prepared) -> float:
+    return 0.0 if p.temp is None else float(np.ptp(p.temp))
+
+
+# ---- the vocabulary ----------------------------------------------------------------------------
+class ThermalLag(Candidate):
+    name = "thermal_lag"
+    nonlinear = ("tau_s",)
+    refine = (("tau_s", True),)
+
+    def missing(self, p):
+        return [] if p.temp is not None else ["temp_c"]
+
+    def not_excited(self, p, axis):
+        if _temp_range(p) < 2.0:
+            return "temperature varies by less than 2 °C"
+        return None
+
+    def grid(self, p, axis, ctx):
+        hi = min(3000.0, p.duration_s / 3)
+        lo = max(10.0, 3.0 / p.fs)
+        return [{"tau_s": float(v)} for v in np.geomspace(lo, max(hi, 2 * lo), 16)]
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            u = p.temp - T_REF_C
+            ul = fx.lagged(p.t, p.temp, nl["tau_s"]) - T_REF_C
+            return np.column_stack([ul - u, ul ** 2 - u ** 2, ul ** 3 - u ** 3])
+        return Built(cols={axis: _cached(p, ("lag", round(nl["tau_s"], 6)), cols)})
+
+    def params(self, p, axis, nl, coef):
+        return {"tau_s": float(nl["tau_s"]), "tempco_dps": [float(c) for c in coef[axis]]}
+
+    def describe(self, params):
+        c = params["tempco_dps"][0]
+        return f"die temperature lags temp_c by tau = {params['tau_s']:.0f} s (slope {c:+.2g} deg/s/°C at 25 °C)"
+
+
+class WarmupTransient(Candidate):
+    name = "warmup_transient"
+    nonlinear = ("tau_s",)
+    refine = (("tau_s", True),)
+
+    def missing(self, p):
+        return [] if p.power_on is not None else ["power_on_s"]
+
+    def not_excited(self, p, axis):
+        if float(np.min(p.power_on)) > 600.0 and not np.any(np.diff(p.power_on) < 0):
+            return "no data within 10 min of a power-on"
+        return None
+
+    def grid(self, p, axis, ctx):
+        hi = min(3600.0, p.duration_s / 3)
+        lo = max(10.0, 3.0 / p.fs)
+        return [{"tau_s": float(v)} for v in np.geomspace(lo, max(hi, 2 * lo), 14)]
+
+    def build(self, p, axis, nl, ctx):
+        col = _cached(p, ("warm", round(nl["tau_s"], 6)), lambda: np.exp(-np.clip(p.power_on, 0, None) / nl["tau_s"])[:, None])
+        return Built(cols={axis: col})
+
+    def params(self, p, axis, nl, coef):
+        return {"amplitude_dps": float(coef[axis][0]), "tau_s": float(nl["tau_s"])}
+
+    def describe(self, params):
+        return f"{params['amplitude_dps']:+.2g} deg/s at power-on decaying with tau = {params['tau_s']:.0f} s"
+
+
+class PressureBias(Candidate):
+    name = "pressure_bias"
+    nonlinear = ("p0_torr",)
+    refine = (("p0_torr", True),)
+
+    def missing(self, p):
+        return [] if p.pressure is not None else ["pressure_torr"]
+
+    def not_excited(self, p, axis):
+        lp = np.log10(p.pressure)
+        if np.ptp(lp) < 1.5:
+            return "pressure spans less than 1.5 decades"
+        return None
+
+    def grid(self, p, axis, ctx):
+        lp = np.log10(p.pressure)
+        lo, hi = float(lp.min()), float(lp.max())
+        return [{"p0_torr": float(10 ** v)} for v in np.arange(math.floor(lo * 4) / 4, hi + 1e-9, 0.25)]
+
+    def build(self, p, axis, nl, ctx):
+        slope = float(nl.get("slope", 1.0))
+        col = _cached(p, ("press", round(math.log10(nl["p0_torr"]), 6), slope),
+                      lambda: fx.pressure_transition(p.pressure, nl["p0_torr"], slope)[:, None])
+        return Built(cols={axis: col})
+
+    def params(self, p, axis, nl, coef):
+        return {"shift_dps": float(coef[axis][0]), "p0_torr": float(nl["p0_torr"]), "slope": float(nl.get("slope", 1.0))}
+
+    def describe(self, params):
+        return f"{params['shift_dps']:+.2g} deg/s below ~{params['p0_torr']:.1g} Torr"
+
+
+class GearEccentricity(Candidate):
+    name = "gear_eccentricity"
+    nonlinear = ("harmonic", "phase_rad")
+    N_MAX = 360
+    SHORTLIST = 6
+
+    def missing(self, p):
+        out = [] if p.angle is not None else ["table_angle_deg"]
+        return out + ([] if p.ref is not None else ["ref_rate_*_dps"])
+
+    def candidate_axes(self, p):
+        return [a for a in p.axes if p.rate_excited(a)]
+
+    def not_excited(self, p, axis):
+        if float(np.ptp(np.unwrap(np.radians(p.angle)))) < 2 * math.pi:
+            return "the table turns less than one revolution"
+        return None
+
+    def spectrum(self, p: Prepared, axis: str, resid: np.ndarray, n_max: int | None = None) -> np.ndarray:
+        """Least-squares power (SSE reduction, (deg/s)²) of r on ω·sin(Nθ), ω·cos(Nθ) for N = 1..N_max."""
+        n_max = n_max or self.N_MAX
+        w = p.ref_axis(axis)
+        z = np.exp(1j * np.radians(p.angle))
+        e = np.ones_like(z)
+        rw = resid * w
+        w2 = w * w
+        s0 = float(w2.sum())
+        out = np.zeros(n_max)
+        for k in range(n_max):
+            e = e * z
+            hc = complex(np.dot(rw, e))  # Σ rω cos + i Σ rω sin
+            g2 = complex(np.dot(w2, e * e))  # Σ ω² cos2 + i Σ ω² sin2
+            gss = 0.5 * (s0 - g2.real)
+            gcc = 0.5 * (s0 + g2.real)
+            gsc = 0.5 * g2.imag
+            hs, hcos = hc.imag, hc.real
+            det = gss * gcc - gsc * gsc
+            if det <= 1e-12 * s0 * s0:
+                continue
+            out[k] = (gcc * hs * hs - 2 * gsc * hs * hcos + gss * hcos * hcos) / det
+        return out
+
+    def grid(self, p, axis, ctx):
+        spec = self.spectrum(p, axis, ctx.resid[axis])
+        top = np.argsort(spec)[::-1][: self.SHORTLIST] + 1
+        return [{"harmonic": int(N)} for N in top]
+
+    def build(self, p, axis, nl, ctx):
+        th = np.radians(p.angle) * nl["harmonic"]
+        w = p.ref_axis(axis)
+        return Built(cols={axis: np.column_stack([w * np.sin(th), w * np.cos(th)])})
+
+    def params(self, p, axis, nl, coef):
+        a, b = (float(v) for v in coef[axis])
+        return {"fraction": math.hypot(a, b), "harmonic": int(nl["harmonic"]), "phase_rad": math.atan2(b, a)}
+
+    def describe(self, params):
+        return (f"{100 * params['fraction']:.2g} % of the table rate, periodic in table angle at harmonic "
+                f"N = {params['harmonic']}")
+
+
+class GSensitivity(Candidate):
+    name = "g_sensitivity"
+
+    def missing(self, p):
+        return [] if p.accel is not None else ["accel_*_g"]
+
+    def not_excited(self, p, axis):
+        if float(np.max(np.std(p.accel, axis=0))) < 0.02:
+            return "specific force does not turn in the sensor frame"
+        return None
+
+    def build(self, p, axis, nl, ctx):
+        return Built(cols={axis: p.accel})
+
+    def params(self, p, axis, nl, coef):
+        return {"dps_per_g": [float(c) for c in coef[axis]]}
+
+    def describe(self, params):
+        g = params["dps_per_g"]
+        return f"{math.sqrt(sum(v * v for v in g)):.2g} deg/s per g (x {g[0]:+.2g}, y {g[1]:+.2g}, z {g[2]:+.2g})"
+
+
+class ScaleFactorAsymmetry(Candidate):
+    name = "scale_factor_asymmetry"
+
+    def missing(self, p):
+        return [] if p.ref is not None else ["ref_rate_*_dps"]
+
+    def candidate_axes(self, p):
+        return [a for a in p.axes if p.rate_excited(a)]
+
+    def not_excited(self, p, axis):
+        r = p.ref_axis(axis)
+        if not (np.any(r > RATE_SIGN_DPS) and np.any(r < -RATE_SIGN_DPS)):
+            return "rates of one sign only"
+        return None
+
+    def build(self, p, axis, nl, ctx):
+        return Built(cols={axis: np.abs(p.ref_axis(axis))[:, None]})
+
+    def params(self, p, axis, nl, coef):
+        return {"asymmetry": float(coef[axis][0])}
+
+    def describe(self, params):
+        a = params["asymmetry"]
+        return f"scale factor {100 * a:+.2g} % for positive, {-100 * a:+.2g} % for negative rates"
+
+
+RATE_SIGN_DPS = 0.05
+
+
+class ScaleFactorTempco(Candidate):
+    name = "scale_factor_tempco"
+
+    def missing(self, p):
+        out = [] if p.ref is not None else ["ref_rate_*_dps"]
+        return out + ([] if p.temp is not None else ["temp_c"])
+
+    def candidate_axes(self, p):
+        return [a for a in p.axes if p.rate_excited(a)]
+
+    def not_excited(self, p, axis):
+        return "temperature varies by less than 3 °C" if _temp_range(p) < 3.0 else None
+
+    def build(self, p, axis, nl, ctx):
+        return Built(cols={axis: ((p.temp - T_REF_C) * p.ref_axis(axis))[:, None]})
+
+    def params(self, p, axis, nl, coef):
+        return {"tempco_per_c": float(coef[axis][0]), "t_ref_c": T_REF_C}
+
+    def describe(self, params):
+        return f"scale factor {1e6 * params['tempco_per_c']:+.3g} ppm/°C"
+
+
+class Hysteresis(Candidate):
+    name = "hysteresis"
+    nonlinear = ("deadband_c",)
+    DEADBANDS = (0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0)
+
+    def missing(self, p):
+        return [] if p.temp is not None else ["temp_c"]
+
+    def not_excited(self, p, axis):
+        s = fx.hysteresis_state(p.temp, 0.5)
+        if not (np.any(s > 0) and np.any(s < 0)):
+            return "the temperature never reverses"
+        return None
+
+    def grid(self, p, axis, ctx):
+        return [{"deadband_c": d} for d in self.DEADBANDS if d < _temp_range(p) / 4]
+
+    def build(self, p, axis, nl, ctx):
+        col = _cached(p, ("hyst", nl["deadband_c"]), lambda: fx.hysteresis_state(p.temp, nl["deadband_c"])[:, None])
+        return Built(cols={axis: col})
+
+    def params(self, p, axis, nl, coef):
+        return {"amplitude_dps": float(coef[axis][0]), "deadband_c": float(nl["deadband_c"])}
+
+    def describe(self, params):
+        return (f"±{abs(params['amplitude_dps']):.2g} deg/s by temperature direction "
+                f"({'+' if params['amplitude_dps'] >= 0 else '-'} when rising, deadband {params['deadband_c']:g} °C)")
+
+
+class TimeSkew(Candidate):
+    name = "time_skew"
+    shared = True
+    nonlinear = ("delay_s",)
+    refine = (("delay_s", False),)
+
+    def missing(self, p):
+        return [] if p.ref is not None else ["ref_rate_*_dps"]
+
+    def not_excited(self, p, axis):
+        if p.ref is None or float(np.max(np.abs(np.diff(p.ref, axis=0)))) < 1e-6:
+            return "the reference rate never changes"
+        return None
+
+    def grid(self, p, axis, ctx):
+        span = max(1.0, 2.0 / p.fs)
+        return [{"delay_s": float(d)} for d in np.linspace(-span, span, 41) if d != 0.0]
+
+    def build(self, p, axis, nl, ctx):
+        d = nl["delay_s"]
+        off = {}
+        for a in p.axes:
+            r = p.ref_axis(a)
+            if np.ptp(r) > 0:
+                off[a] = fx.delayed(p.t, r, d) - r
+        return Built(offsets=off)
+
+    def params(self, p, axis, nl, coef):
+        return {"delay_s": float(nl["delay_s"])}
+
+    def describe(self, params):
+        d = params["delay_s"]
+        return f"gyro samples {1e3 * abs(d):.3g} ms {'late' if d > 0 else 'early'} against the reference"
+
+
+class RateRandomWalk(Candidate):
+    name = "rate_random_walk"
+    nonlinear = ("k_dps_per_sqrt_s",)
+    select_by_cv = True
+    KNOTS = 100
+    K_GRID = tuple(float(v) for v in np.geomspace(3e-6, 3e-3, 13))
+
+    def grid(self, p, axis, ctx):
+        return [{"k_dps_per_sqrt_s": k} for k in self.K_GRID]
+
+    def knots(self, p: Prepared) -> np.ndarray:
+        n_k = int(min(self.KNOTS, max(p.duration_s / max(p.blocks.length / p.fs, 1.0), 4)))
+        return np.linspace(p.t[0], p.t[-1], n_k + 1)
+
+    def basis(self, p: Prepared) -> np.ndarray:
+        def hats():
+            kn = self.knots(p)
+            j = np.clip(np.searchsorted(kn, p.t, side="right") - 1, 0, kn.size - 2)
+            w = (p.t - kn[j]) / (kn[j + 1] - kn[j])
+            out = np.zeros((p.n, kn.size))
+            out[np.arange(p.n), j] = 1 - w
+            out[np.arange(p.n), j + 1] += w
+            return out
+        return _cached(p, ("rrw_basis",), hats)
+
+    def build(self, p, axis, nl, ctx):
+        hat = self.basis(p)
+        kn = self.knots(p)
+        delta = float(kn[1] - kn[0])
+        k = nl["k_dps_per_sqrt_s"]
+        lam = ctx.sigma2[axis] / (k * k * delta)
+        d = np.diff(np.eye(hat.shape[1]), axis=0)
+        return Built(cols={axis: hat}, penalty={axis: lam * (d.T @ d)})
+
+    def params(self, p, axis, nl, coef):
+        return {"k_dps_per_sqrt_s": float(nl["k_dps_per_sqrt_s"])}
+
+    def describe(self, params):
+        return f"bias random walk {params['k_dps_per_sqrt_s']:.2g} deg/s/√s"
+
+
+class EarthRate(Candidate):
+    name = "earth_rate"
+    shared = True
+
+    def missing(self, p):
+        out = []
+        if p.latitude is None:
+            out.append("latitude_deg (header or run file)")
+        if p.accel is None:
+            out.append("accel_*_g")
+        if p.angle is None and p.table_axis is not None:
+            out.append("table_angle_deg")
+        return out
+
+    def build(self, p, axis, nl, ctx):
+        e = _cached(p, ("earth",), lambda: fx.earth_rate_sensor(p.accel, p.angle, p.latitude, p.table_axis or "z"))
+        return Built(offsets={a: e[:, AXES.index(a)] for a in p.axes})
+
+    def params(self, p, axis, nl, coef):
+        return {"latitude_deg": float(p.latitude), "scale": 1.0, "table_axis": p.table_axis or "z"}
+
+    def describe(self, params):
+        return f"Earth rate at latitude {params['latitude_deg']:.1f}° not in the reference"
+
+
+CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
+    ThermalLag(), WarmupTransient(), PressureBias(), GearEccentricity(), GSensitivity(), ScaleFactorAsymmetry(),
+    ScaleFactorTempco(), Hysteresis(), TimeSkew(), RateRandomWalk(), EarthRate())}
+"""Every vocabulary term as a candidate, in vocabulary order."""
+
+assert tuple(CANDIDATES) == fx.VOCABULARY

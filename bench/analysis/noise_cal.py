@@ -1,0 +1,441 @@
+"""``bench calibrate noise`` and ``bench calibrate moving-average``: random-drift characterisation of
+static gyro data (method and equations in ``docs/noise.md``).
+
+* :func:`calibrate` (method ``noise``, NPSAT1 thesis IV.G.3, IEEE Std 952 Annex C): overlapping
+  Allan deviation of each gyro axis with chi-squared confidence intervals, the four-term IEEE model
+  fitted by weighted non-negative least squares, and the read-outs angle random walk (deg/√h, the
+  −½ line at τ = 1 s), bias instability (deg/h, minimum of the Allan deviation / 0.664), rate
+  random walk (deg/h/√h, the +½ line at τ = 3 s) and quantization (deg, the −1 line, σ = √3·Q/τ).
+* :func:`calibrate_moving_average` (method ``moving-average``, ESTCube-2 thesis 3.3 / 4.1): the
+  standard deviation of the N-sample moving average of the static output versus the buffer length
+  N, with the σ₁/√N line expected for white noise.
+
+Both use the static part of the data: rows where every ``ref_rate_*_dps`` column present is 0 deg/s
+(all rows when there is none), and of those the longest stretch sampled evenly (no time gap larger
+than 1.5 sample intervals). Other stretches are left out and said so in a note.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bench.analysis.allan import (
+    FLICKER_FLOOR,
+    ONE_SIGMA,
+    TERMS,
+    AllanResult,
+    NoiseTerms,
+    dominant_alpha,
+    fit_noise_terms,
+    overlapping_adev,
+)
+from bench.analysis.dataset import AXES, GYRO, REF_RATE, Dataset
+from bench.analysis.result import CalibrationResult, ResultTable
+from bench.errors import InputError, Location
+
+MIN_SAMPLES = 64
+"""Fewest static samples the analyses accept (octave τ up to 16 samples)."""
+
+STATIC_TOLERANCE_DPS = 1e-9
+"""|reference rate| at or below this counts as 0 deg/s (static)."""
+
+GAP_FACTOR = 1.5
+"""A time step longer than this many nominal sample intervals (or shorter than 1/this) breaks the
+evenly sampled stretch."""
+
+DEFAULT_BUFFER_LENGTHS = (1, 2, 4, 8, 16, 32, 40, 64, 100)
+"""Moving-average buffer lengths N by default: octaves, ESTCube-2's chosen N = 40, its maximum 100."""
+
+DEG_H_PER_DPS = 3600.0
+
+
+@dataclass
+class StaticData:
+    """The static, evenly sampled stretch used by the analyses: ``ds`` (its rows), ``fs`` (Hz),
+    ``notes`` for the operator, ``first_row``/``last_row`` (0-based rows of the input dataset)."""
+
+    ds: Dataset
+    fs: float
+    notes: list[str]
+    first_row: int
+    last_row: int
+
+
+# ---- static stretch -----------------------------------------------------------------------------
+def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | None = None) -> StaticData:
+    """Select the longest evenly sampled static stretch of ``ds`` and drop its first ``skip_s`` s.
+
+    Raises :class:`InputError` (naming the source and column) when there is no gyro column, no
+    static row, too few samples, or a non-finite gyro value in the stretch.
+    """
+    src = ds.source or "dataset"
+    if "time_s" not in ds.columns:
+        raise InputError(f"{src}: the noise analysis needs column 'time_s'")
+    use_axes = _axes(ds, axes)
+    n = len(ds)
+    if n < MIN_SAMPLES:
+        raise InputError(f"{src}: {n} rows; the noise analysis needs at least {MIN_SAMPLES} static samples")
+    fs = ds.sample_rate_hz
+    if not (math.isfinite(fs) and fs > 0):
+        raise InputError(f"{src}: cannot tell the sample rate (sample_rate_hz = {fs!r})", field="time_s")
+    t = np.asarray(ds["time_s"], dtype=float)
+
+    refs = [REF_RATE[a] for a in AXES if REF_RATE[a] in ds.columns]
+    if refs:
+        static = np.ones(n, dtype=bool)
+        for c in refs:
+            r = np.asarray(ds[c], dtype=float)
+            static &= np.isfinite(r) & (np.abs(r) <= STATIC_TOLERANCE_DPS)
+        if not static.any():
+            raise InputError(f"{src}: no static rows: {', '.join(refs)} are never all 0 deg/s; the noise analysis "
+                             "needs a recording with the unit at rest", field=refs[0])
+    else:
+        static = np.ones(n, dtype=bool)
+
+    dt = np.diff(t) * fs
+    even = (dt > 1.0 / GAP_FACTOR) & (dt < GAP_FACTOR)
+    link = static[1:] & static[:-1] & even  # row i+1 continues the stretch of row i
+    # runs of rows joined by static, evenly spaced steps; keep the longest static one
+    breaks = np.flatnonzero(~link) + 1
+    starts = np.concatenate([[0], breaks])
+    stops = np.concatenate([breaks - 1, [n - 1]])
+    lengths = np.where(static[starts], stops - starts + 1, 0)
+    j = int(np.argmax(lengths))
+    best_len, a0, b0 = int(lengths[j]), int(starts[j]), int(stops[j])
+    notes: list[str] = []
+    gaps = int(np.count_nonzero(~even))
+    n_static = int(np.count_nonzero(static))
+    if best_len < n or gaps:
+        parts = []
+        if refs and n_static < n:
+            parts.append(f"{n - n_static} moving rows")
+        if gaps:
+            k = int(np.argmax(np.abs(np.log(np.clip(dt, 1e-12, None)))))
+            parts.append(f"{gaps} uneven time step(s) (worst {np.diff(t)[k]:.6g} s at t = {t[k]:.6g} s, nominal "
+                         f"{1 / fs:.6g} s)")
+        if n_static > best_len:
+            parts.append(f"{n_static - best_len} static samples in other stretches")
+        notes.append(f"{src}: analysed the longest evenly sampled static stretch, rows {a0 + 1}-{b0 + 1} "
+                     f"(t = {t[a0]:.6g}-{t[b0]:.6g} s, {best_len} samples); left out {n - best_len} rows"
+                     + (f" ({'; '.join(parts)})" if parts else ""))
+    if skip_s:
+        if not (math.isfinite(skip_s) and skip_s >= 0):
+            raise InputError(f"skip_s must be a number of seconds >= 0, got {skip_s!r}")
+        k = int(np.searchsorted(t[a0:b0 + 1], t[a0] + skip_s, side="left"))
+        a0 += k
+        notes.append(f"skipped the first {skip_s:g} s of the static stretch ({k} samples, warm-up)")
+    count = b0 - a0 + 1
+    if count < MIN_SAMPLES:
+        raise InputError(f"{src}: the longest evenly sampled static stretch has {max(count, 0)} samples after "
+                         f"skipping; the noise analysis needs at least {MIN_SAMPLES}", field="time_s")
+    seg = ds.select(np.arange(a0, b0 + 1))
+    steps = np.diff(seg["time_s"]) * fs
+    jitter = float(np.std(steps))
+    ratio = float(np.median(steps))
+    if abs(ratio - 1) > 0.01:
+        notes.append(f"{src}: time_s steps (median {ratio / fs:.6g} s) differ from 1/sample_rate_hz "
+                     f"({1 / fs:.6g} s) by {100 * (ratio - 1):+.1f} %; used sample_rate_hz = {fs:g} Hz")
+    if jitter > 0.01:
+        notes.append(f"{src}: sample times jitter by {100 * jitter:.1f} % of the interval (RMS); the analysis assumes "
+                     "even sampling, short-τ results are approximate")
+    for a in use_axes:
+        col = GYRO[a]
+        v = np.asarray(seg[col], dtype=float)
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            row = a0 + int(bad[0])
+            loc = Location(src, int(ds.line_numbers[row])) if ds.line_numbers is not None else None
+            raise InputError(f"{'' if loc else src + ': '}row {row + 1}: value {v[bad[0]]!r} is not a finite rate",
+                             loc, col)
+    return StaticData(seg, float(fs), notes, a0, b0)
+
+
+def _axes(ds: Dataset, axes: Sequence[str] | str | None) -> list[str]:
+    src = ds.source or "dataset"
+    present = ds.gyro_axes
+    if not present:
+        raise InputError(f"{src}: no gyro column (expected gyro_x_dps, gyro_y_dps or gyro_z_dps; present: "
+                         f"{', '.join(ds.columns) or 'none'})")
+    if axes is None:
+        return present
+    wanted = list(axes.replace(",", " ").split()) if isinstance(axes, str) else list(axes)
+    for a in wanted:
+        if a not in AXES:
+            raise InputError(f"unknown axis {a!r} (use x, y or z)")
+        if a not in present:
+            raise InputError(f"{src}: no column {GYRO[a]!r} for axis {a} (present: {', '.join(ds.columns)})", field=GYRO[a])
+    return wanted
+
+
+def _numbers(value: Any, name: str) -> list[float] | None:
+    if value is None:
+        return None
+    items = value.replace(",", " ").split() if isinstance(value, str) else (
+        list(value) if isinstance(value, Iterable) else [value])
+    try:
+        out = [float(v) for v in items]
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected numbers, got {value!r}") from None
+    if not out or not all(math.isfinite(v) and v > 0 for v in out):
+        raise InputError(f"{name}: expected positive numbers, got {value!r}")
+    return out
+
+
+def _check_options(method: str, opts: dict[str, Any]) -> None:
+    if opts:
+        raise InputError(f"calibrate {method}: unknown option(s) {', '.join(sorted(opts))}")
+
+
+# ---- LSB (digital output resolution) -----------------------------------------------------------
+def detect_lsb(values: np.ndarray, probe: int = 100_000) -> float | None:
+    """The output resolution (deg/s) when every value is an integer multiple of one step apart (a
+    digital output such as a 16-bit gyro register, or a CSV printed with few decimals); ``None`` for
+    continuous data or an output with fewer than three distinct values.
+
+    The step is the smallest gap between distinct values of the first ``probe`` samples; every value
+    must then lie within 10⁻⁶ step of the grid.
+    """
+    v = np.asarray(values, dtype=float)
+    u = np.unique(v[:probe])
+    if u.size < 3:
+        return None
+    d = np.diff(u)
+    step = float(d.min())
+    k = d / step
+    if np.max(np.abs(k - np.round(k))) > 1e-6:
+        return None
+    off = (v - u[0]) / step
+    if np.max(np.abs(off - np.round(off))) > 1e-6:
+        return None
+    span = float(u[-1] - u[0])
+    return span / round(span / step)
+
+
+# ---- noise (Allan deviation) --------------------------------------------------------------------
+@dataclass
+class AxisNoise:
+    """One axis' Allan deviation, fitted terms and read-outs (units in the names)."""
+
+    allan: AllanResult
+    terms: NoiseTerms
+    bias_instability_dps: float
+    bias_instability_tau_s: float
+    lsb_dps: float | None
+    arw_lsb_corrected_deg_per_sqrt_h: float | None
+    bias_instability_raw_dps: float
+
+
+def analyse_axis(rate: np.ndarray, fs: float, taus: Sequence[float] | None = None,
+                 confidence: float = ONE_SIGMA) -> AxisNoise:
+    """Allan deviation of one static rate series (deg/s at ``fs`` Hz), the IEEE model fit, CIs for
+    the noise type dominating each τ, and the read-outs."""
+    first = overlapping_adev(rate, fs, taus, confidence=confidence)
+    terms = fit_noise_terms(first)
+    allan = first.with_alpha(dominant_alpha(terms, first.taus_s))
+    model = np.sqrt(terms.avar(allan.taus_s))
+    i = int(np.argmin(model)) if np.any(model > 0) else int(np.argmin(allan.adev))
+    floor = float(model[i]) if np.any(model > 0) else float(allan.adev[i])
+    lsb = detect_lsb(np.asarray(rate, dtype=float))
+    corrected = None
+    if lsb is not None:
+        # Sheppard: rounding to the LSB adds independent white error of variance LSB²/12 per sample
+        # when the noise is at least half an LSB; it raises N² by LSB²/(12 f_s).
+        n2 = terms.n_deg_rts ** 2 - lsb ** 2 / (12.0 * fs)
+        sigma_true = math.sqrt(max(n2, 0.0) * fs)
+        if n2 > 0 and sigma_true >= lsb / 2:
+            corrected = math.sqrt(n2) * 60.0
+    return AxisNoise(allan, terms, floor / FLICKER_FLOOR, float(allan.taus_s[i]), lsb, corrected,
+                     float(np.min(allan.adev)) / FLICKER_FLOOR)
+
+
+def calibrate(ds: Dataset, *, taus: Sequence[float] | str | None = None, confidence: float = ONE_SIGMA,
+              skip_s: float = 0.0, axes: Sequence[str] | str | None = None, **opts: Any) -> CalibrationResult:
+    """Method ``noise``: Allan-deviation noise read-outs of every gyro axis of ``ds``.
+
+    Options: ``taus`` averaging times (s; default octaves m = 1, 2, 4, … ≤ n/4 samples),
+    ``confidence`` level of the ADEV intervals (default 0.683, ±1σ), ``skip_s`` seconds dropped at
+    the start of the static stretch (warm-up; default 0), ``axes`` subset of x, y, z.
+    JSON shape: see ``docs/noise.md``. Raises :class:`InputError` for bad data or options.
+    """
+    _check_options("noise", opts)
+    if not (isinstance(confidence, (int, float)) and 0 < confidence < 1):
+        raise InputError(f"confidence must lie between 0 and 1, got {confidence!r}")
+    tau_list = _numbers(taus, "taus")
+    sd = static_data(ds, float(skip_s), axes)
+    use_axes = _axes(ds, axes)
+    notes = list(sd.notes)
+    out_axes: dict[str, Any] = {}
+    rows: list[list[Any]] = []
+    per_axis: dict[str, AxisNoise] = {}
+    for a in use_axes:
+        rate = np.asarray(sd.ds[GYRO[a]], dtype=float)
+        res = analyse_axis(rate, sd.fs, tau_list, float(confidence))
+        per_axis[a] = res
+        al, tm = res.allan, res.terms
+        out_axes[a] = {
+            "arw_deg_per_sqrt_h": tm.arw_deg_per_sqrt_h,
+            "bias_instability_deg_per_h": res.bias_instability_dps * DEG_H_PER_DPS,
+            "rrw_deg_per_h_per_sqrt_h": tm.rrw_deg_per_h_per_sqrt_h,
+            "quantization_deg": tm.q_deg,
+            "taus_s": al.taus_s.tolist(),
+            "adev_dps": al.adev.tolist(),
+            "adev_lo_dps": al.adev_lo.tolist(),
+            "adev_hi_dps": al.adev_hi.tolist(),
+            "n_terms": al.n_terms.tolist(),
+            "edf": al.edf.tolist(),
+            "bias_instability_tau_s": res.bias_instability_tau_s,
+            "bias_instability_fit_deg_per_h": tm.b_dps * DEG_H_PER_DPS,
+            "bias_instability_raw_deg_per_h": res.bias_instability_raw_dps * DEG_H_PER_DPS,
+            "detected": dict(tm.dominant),
+            "lsb_dps": res.lsb_dps,
+            "arw_lsb_corrected_deg_per_sqrt_h": res.arw_lsb_corrected_deg_per_sqrt_h,
+        }
+        notes.extend(_axis_notes(a, res, sd.fs))
+        rows.append([a, _sig(tm.arw_deg_per_sqrt_h), _sig(res.bias_instability_dps * DEG_H_PER_DPS),
+                     _sig(res.bias_instability_tau_s), _sig(tm.rrw_deg_per_h_per_sqrt_h), _sig(tm.q_deg),
+                     ", ".join(t for t in TERMS if tm.dominant[t]) or "-"])
+    src = ds.source or "dataset"
+    n_static = len(sd.ds)
+    tables = [
+        ResultTable(
+            f"Gyro noise from {src} ({n_static} static samples at {sd.fs:g} Hz, "
+            f"{n_static / sd.fs / 3600:.3g} h; IEEE Std 952 read-outs)",
+            ["axis", "ARW (deg/√h)", "bias instability (deg/h)", "at τ (s)", "RRW (deg/h/√h)", "quantization (deg)",
+             "terms resolved"],
+            rows),
+        _adev_table(per_axis, float(confidence)),
+    ]
+    t = sd.ds["time_s"]
+    payload = {
+        "axes": out_axes,
+        "sample_rate_hz": sd.fs,
+        "confidence": float(confidence),
+        "static_samples": n_static,
+        "static_t_s": [float(t[0]), float(t[-1])],
+    }
+    return CalibrationResult("noise", payload, tables, None, notes)
+
+
+def _axis_notes(a: str, res: AxisNoise, fs: float) -> list[str]:
+    al, tm = res.allan, res.terms
+    out: list[str] = []
+    last_share = tm.contributions(al.taus_s[-1:])[0]
+    plateau = tm.dominant["bias_instability"] and TERMS[int(np.argmax(last_share))] == "bias_instability"
+    if res.bias_instability_tau_s >= al.taus_s[-1] and not plateau:
+        out.append(f"{a}: the Allan deviation is still falling at the longest τ ({al.taus_s[-1]:g} s): no flat region, "
+                   "the bias instability is an upper bound (record longer)")
+    elif not tm.dominant["bias_instability"]:
+        out.append(f"{a}: no flat region: the bias instability is read at the minimum of the fitted curve "
+                   f"(τ = {res.bias_instability_tau_s:g} s, where the −½ and +½ lines meet), an upper bound")
+    if not tm.dominant["arw"]:
+        out.append(f"{a}: no −½ slope region: the ARW is not resolved by these data")
+    if not tm.dominant["rrw"]:
+        out.append(f"{a}: no +½ slope region within τ ≤ {al.taus_s[-1]:g} s: the RRW is not resolved "
+                   "(reported value is the fit's bound)")
+    if tm.dominant["quantization"]:
+        out.append(f"{a}: quantization noise (−1 slope) dominates at short τ; it is fitted separately and not "
+                   "counted in the ARW")
+    if res.lsb_dps is not None:
+        sigma = float(al.adev[0]) if al.m[0] == 1 else float("nan")
+        if math.isfinite(sigma) and sigma < res.lsb_dps:
+            out.append(f"{a}: output resolution {res.lsb_dps:.4g} deg/s exceeds the sample-to-sample noise "
+                       f"({sigma:.3g} deg/s): the output is quantization-limited and the ARW is not reliable")
+        else:
+            share = res.lsb_dps ** 2 / 12.0 / max(tm.n_deg_rts ** 2 * fs, 1e-300)
+            if share > 0.02:
+                out.append(f"{a}: output resolution {res.lsb_dps:.4g} deg/s adds white noise LSB²/12 = {100 * share:.0f} % "
+                           f"of the white-noise variance; the sensor ARW without it is "
+                           + (f"{res.arw_lsb_corrected_deg_per_sqrt_h:.4g} deg/√h"
+                              if res.arw_lsb_corrected_deg_per_sqrt_h is not None else "not resolvable"))
+    return out
+
+
+def _adev_table(per_axis: dict[str, AxisNoise], confidence: float) -> ResultTable:
+    axes = list(per_axis)
+    ref = per_axis[axes[0]].allan
+    headers = ["τ (s)", "terms"]
+    for a in axes:
+        headers += [f"σ_{a} (deg/s)", f"{a} {100 * confidence:.0f} % low", f"{a} high"]
+    rows = []
+    for k in range(ref.taus_s.size):
+        row: list[Any] = [_sig(ref.taus_s[k]), int(ref.n_terms[k])]
+        for a in axes:
+            al = per_axis[a].allan
+            row += [_sig(al.adev[k]), _sig(al.adev_lo[k]), _sig(al.adev_hi[k])]
+        rows.append(row)
+    return ResultTable("Overlapping Allan deviation (chi-squared intervals, edf for the dominant noise type)",
+                       headers, rows)
+
+
+def _sig(v: float, digits: int = 4) -> float:
+    return float(f"{float(v):.{digits}g}")
+
+
+# ---- moving average (ESTCube-2) -----------------------------------------------------------------
+def moving_average_std(rate: np.ndarray, buffer_lengths: Sequence[int]) -> tuple[np.ndarray, np.ndarray, float]:
+    """Sample standard deviation (ddof = 1, deg/s) of the N-sample moving average of ``rate`` for
+    each N (only outputs with a full buffer, as with ESTCube-2's pre-filled buffer), the number of
+    outputs, and the raw standard deviation σ₁ (N = 1)."""
+    y = np.asarray(rate, dtype=float)
+    y = y - y.mean()
+    c = np.concatenate([[0.0], np.cumsum(y)])
+    stds, counts = [], []
+    for nb in buffer_lengths:
+        ma = (c[nb:] - c[:-nb]) / nb
+        stds.append(float(np.std(ma, ddof=1)))
+        counts.append(ma.size)
+    return np.array(stds), np.array(counts), float(np.std(y, ddof=1))
+
+
+def calibrate_moving_average(ds: Dataset, buffer_lengths: Sequence[int] | str = DEFAULT_BUFFER_LENGTHS, *,
+                             skip_s: float = 0.0, axes: Sequence[str] | str | None = None,
+                             **opts: Any) -> CalibrationResult:
+    """Method ``moving-average``: standard deviation of the moving-averaged static output versus
+    the buffer length N (ESTCube-2 3.3, 4.1), per gyro axis, with the white-noise line σ₁/√N.
+
+    JSON: ``{"axes": {"x": {"n": [...], "std_dps": [...], "white_noise_std_dps": [...], "outputs": [...]}},
+    "sample_rate_hz": f, "static_samples": n}``. Buffer lengths longer than the static stretch
+    minus one sample are left out (with a note).
+    """
+    _check_options("moving-average", opts)
+    raw = _numbers(buffer_lengths, "buffer_lengths")
+    assert raw is not None
+    if any(v != int(v) for v in raw):
+        raise InputError(f"buffer_lengths must be whole numbers of samples, got {buffer_lengths!r}")
+    lengths = sorted({int(v) for v in raw})
+    sd = static_data(ds, float(skip_s), axes)
+    use_axes = _axes(ds, axes)
+    notes = list(sd.notes)
+    n = len(sd.ds)
+    usable = [v for v in lengths if v <= n - 1]
+    if len(usable) < len(lengths):
+        notes.append(f"buffer lengths {', '.join(str(v) for v in lengths if v > n - 1)} exceed the {n}-sample static "
+                     "stretch and were left out")
+    if not usable:
+        raise InputError(f"{ds.source or 'dataset'}: no buffer length fits the {n}-sample static stretch")
+    out_axes: dict[str, Any] = {}
+    cols: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for a in use_axes:
+        std, counts, s1 = moving_average_std(sd.ds[GYRO[a]], usable)
+        white = s1 / np.sqrt(np.array(usable, dtype=float))
+        cols[a] = (std, white)
+        out_axes[a] = {"n": list(usable), "std_dps": std.tolist(), "white_noise_std_dps": white.tolist(),
+                       "outputs": counts.tolist()}
+        excess = std / np.where(white > 0, white, np.inf)
+        over = [nb for nb, e in zip(usable, excess) if e > 1.2]
+        if over:
+            notes.append(f"{a}: from N = {over[0]} the std is more than 20 % above the white-noise line: correlated "
+                         "noise (drift, bias instability, filtering) limits what a longer buffer gains")
+    headers = ["N"]
+    for a in use_axes:
+        headers += [f"std {a} (deg/s)", f"{a} white σ₁/√N (deg/s)"]
+    rows = [[nb] + [_sig(v) for a in use_axes for v in (cols[a][0][k], cols[a][1][k])] for k, nb in enumerate(usable)]
+    tables = [ResultTable(f"Moving-average buffer length vs output noise from {ds.source or 'dataset'} "
+                          f"({n} static samples at {sd.fs:g} Hz)", headers, rows)]
+    payload = {"axes": out_axes, "sample_rate_hz": sd.fs, "static_samples": n}
+    return CalibrationResult("moving-average", payload, tables, None, notes)

@@ -1,0 +1,1 @@
+"""Self-contained HTML reports (``bench report``, ``bench diagnose --report``)."""

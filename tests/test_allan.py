@@ -1,0 +1,322 @@
+"""Overlapping Allan deviation, IEEE Std 952 read-outs and the noise / moving-average calibrations."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import allantools
+import numpy as np
+import pytest
+from allantools import ci as at_ci
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bench.analysis.allan import ONE_SIGMA, edf_simple, fit_noise_terms, octave_m, overlapping_adev
+from bench.analysis.dataset import Dataset, dataset_from_csv
+from bench.analysis.noise_cal import (
+    DEFAULT_BUFFER_LENGTHS,
+    calibrate,
+    calibrate_moving_average,
+    detect_lsb,
+)
+from bench.errors import InputError
+
+REL = 1e-9
+
+
+def make_ds(rate: np.ndarray, fs: float, source: str = "synthetic.csv", **extra: np.ndarray) -> Dataset:
+    n = rate.shape[0]
+    cols = {"time_s": np.arange(n) / fs, "gyro_x_dps": np.asarray(rate, dtype=float), **extra}
+    return Dataset(cols, {"sample_rate_hz": float(fs)}, source)
+
+
+def white(rng: np.random.Generator, n: int, fs: float, arw_deg_rts: float) -> np.ndarray:
+    """White rate noise with angle random walk N (deg/√s): per-sample σ = N·√f_s."""
+    return rng.standard_normal(n) * arw_deg_rts * math.sqrt(fs)
+
+
+def assert_matches_allantools(rate: np.ndarray, fs: float, taus=None) -> None:
+    ours = overlapping_adev(rate, fs, taus)
+    t, d, _, ns = allantools.oadev(rate, rate=fs, data_type="freq", taus=ours.taus_s if taus is None else taus)
+    np.testing.assert_allclose(ours.taus_s, t, rtol=1e-12)
+    np.testing.assert_array_equal(ours.n_terms, ns.astype(np.int64))
+    np.testing.assert_allclose(ours.adev, d, rtol=REL, atol=0)
+
+
+# ---- equality with allantools ----------------------------------------------------------------
+def test_equals_allantools_default_octave_taus():
+    rng = np.random.default_rng(1)
+    n, fs = 50_000, 100.0
+    rate = 0.4 + white(rng, n, fs, 0.005) + np.cumsum(rng.standard_normal(n)) * 1e-5
+    ours = overlapping_adev(rate, fs)
+    np.testing.assert_array_equal(ours.m, 2 ** np.arange(14))  # 1 … 8192 ≤ n/4
+    assert_matches_allantools(rate, fs)
+
+
+def test_equals_allantools_on_messy_tau_list():
+    rng = np.random.default_rng(2)
+    rate = rng.normal(-3.0, 0.2, 3001)
+    taus = [0.1, 0.1, 0.004, 0.05, 0.0149, 7.5, 15.0, 15.005, 100.0, 2.7]  # duplicates, < τ0, > n/2, rounding
+    ours = overlapping_adev(rate, 100.0, taus)
+    np.testing.assert_array_equal(ours.m, [1, 5, 10, 270, 750, 1500])
+    assert_matches_allantools(rate, 100.0, taus)
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(3, 4000), fs=st.floats(0.05, 5000.0), scale=st.floats(1e-4, 1e3),
+       offset=st.floats(-10.0, 10.0), seed=st.integers(0, 2**32 - 1), walk=st.booleans())
+def test_equals_allantools_hypothesis(n, fs, scale, offset, seed, walk):
+    rng = np.random.default_rng(seed)
+    rate = rng.standard_normal(n)
+    if walk:
+        rate = np.cumsum(rate) / math.sqrt(n)
+    rate = scale * (rate + offset)
+    assert_matches_allantools(rate, fs)
+    every = np.arange(1, n + 1) / fs  # every m, including the ones both drop (m >= n/2)
+    assert_matches_allantools(rate, fs, every)
+
+
+def test_edf_equals_allantools_simple_formulas():
+    for alpha in (2, 1, 0, -1, -2):
+        for m in (1, 2, 7, 64, 250):
+            assert edf_simple(1001, m, alpha)[0] == pytest.approx(max(at_ci.edf_simple(1001, m, alpha), 1.0), rel=1e-12)
+
+
+# ---- confidence intervals ---------------------------------------------------------------------
+def test_ci_contains_estimate_and_narrows_with_more_data():
+    rng = np.random.default_rng(3)
+    widths = []
+    for n in (10_000, 100_000):
+        r = overlapping_adev(white(rng, n, 100.0, 0.005), 100.0)
+        assert np.all(r.adev_lo < r.adev) and np.all(r.adev < r.adev_hi)
+        k = int(np.flatnonzero(r.m == 8)[0])
+        widths.append((r.adev_hi[k] - r.adev_lo[k]) / r.adev[k])
+    assert widths[1] < widths[0] / 2.5  # ~1/√10
+
+
+def test_ci_coverage_white_fm():
+    """The ±1σ (68.3 %) chi-squared intervals hold the true σ(τ) = σ/√m about 68 % of the time."""
+    rng = np.random.default_rng(5)
+    trials, hits = 400, np.zeros(4)
+    for _ in range(trials):
+        r = overlapping_adev(rng.standard_normal(1000), 1.0, [1, 4, 16, 64])
+        truth = 1.0 / np.sqrt(r.m)
+        hits += (r.adev_lo <= truth) & (truth <= r.adev_hi)
+    assert r.confidence == pytest.approx(ONE_SIGMA)
+    assert np.all(np.abs(hits / trials - ONE_SIGMA) < 0.08), hits / trials
+
+
+# ---- read-outs ---------------------------------------------------------------------------------
+def test_white_noise_arw_within_10_percent():
+    rng = np.random.default_rng(11)
+    fs, arw = 100.0, 0.005  # deg/√s = 0.3 deg/√h
+    res = calibrate(make_ds(0.3 + white(rng, 200_000, fs, arw), fs))
+    x = res.json["axes"]["x"]
+    assert x["arw_deg_per_sqrt_h"] == pytest.approx(arw * 60, rel=0.10)
+    assert x["detected"]["arw"] and not x["detected"]["quantization"] and not x["detected"]["rrw"]
+    assert x["quantization_deg"] < 1e-4
+    assert x["lsb_dps"] is None
+    assert res.method == "noise" and res.calibration is None
+    assert res.json["sample_rate_hz"] == 100.0
+    assert set(x) >= {"arw_deg_per_sqrt_h", "bias_instability_deg_per_h", "rrw_deg_per_h_per_sqrt_h", "quantization_deg",
+                      "taus_s", "adev_dps", "adev_lo_dps", "adev_hi_dps"}
+    assert len(x["taus_s"]) == len(x["adev_dps"]) == len(x["adev_lo_dps"]) == len(x["adev_hi_dps"])
+    json.dumps(res.json, allow_nan=False)
+    assert any("still falling" in n for n in res.notes)  # white noise only: no flat region
+
+
+def test_rate_random_walk_within_20_percent():
+    rng = np.random.default_rng(12)
+    fs, n, arw, k = 10.0, 200_000, 0.005, 2e-4  # K in deg/s/√s; the -½ and +½ lines cross at τ ≈ 43 s
+    rate = white(rng, n, fs, arw) + np.cumsum(rng.standard_normal(n)) * k / math.sqrt(fs)
+    x = calibrate(make_ds(rate, fs)).json["axes"]["x"]
+    assert x["rrw_deg_per_h_per_sqrt_h"] == pytest.approx(k * 3600 ** 1.5, rel=0.20)
+    assert x["arw_deg_per_sqrt_h"] == pytest.approx(arw * 60, rel=0.10)
+    assert x["detected"]["rrw"] and x["detected"]["arw"]
+
+
+def test_angle_quantization_separated_from_arw():
+    """IEEE 952 quantization noise (white angle error, uniform over one count q) on top of white rate:
+    the −1 slope is fitted as Q = q/√12 and not read as angle random walk."""
+    rng = np.random.default_rng(13)
+    fs, n, arw, q = 100.0, 100_000, 0.005, 0.01  # q in deg
+    rate = white(rng, n, fs, arw) + np.diff(rng.uniform(-q / 2, q / 2, n + 1)) * fs
+    x = calibrate(make_ds(rate, fs)).json["axes"]["x"]
+    assert x["detected"]["quantization"]
+    assert x["quantization_deg"] == pytest.approx(q / math.sqrt(12), rel=0.10)
+    assert x["arw_deg_per_sqrt_h"] == pytest.approx(arw * 60, rel=0.10)
+    naive = x["adev_dps"][0] * math.sqrt(x["taus_s"][0]) * 60  # a −½ line through the first point
+    assert naive > 3 * arw * 60
+
+
+@pytest.mark.parametrize("lsb, sigma", [(250.0 / 32768, 0.022), (0.061, 0.1)])
+def test_rate_quantised_16_bit_output_arw_still_correct(lsb, sigma):
+    """A digital 16-bit rate output (LSB 0.0076 deg/s MPU-6000 ±250 deg/s, or 0.061 deg/s): the LSB is
+    found and the read ARW stays within 10 % of the sensor's."""
+    rng = np.random.default_rng(14)
+    fs = 100.0
+    counts = np.round((0.37 + rng.standard_normal(200_000) * sigma) / lsb)
+    res = calibrate(make_ds(counts * lsb, fs))
+    x = res.json["axes"]["x"]
+    assert x["lsb_dps"] == pytest.approx(lsb, rel=1e-9)
+    assert x["arw_deg_per_sqrt_h"] == pytest.approx(sigma / math.sqrt(fs) * 60, rel=0.10)
+    assert not x["detected"]["quantization"]  # rounding a noisy rate is white: no −1 slope
+
+
+def test_coarse_lsb_correction():
+    """Noise only 0.66 LSB: rounding adds LSB²/12 of white variance (+9 % in ARW); the corrected ARW
+    removes it."""
+    rng = np.random.default_rng(15)
+    fs, lsb, sigma = 100.0, 0.061, 0.04
+    res = calibrate(make_ds(np.round((0.37 + rng.standard_normal(200_000) * sigma) / lsb) * lsb, fs))
+    x = res.json["axes"]["x"]
+    truth = sigma / math.sqrt(fs) * 60
+    assert x["arw_deg_per_sqrt_h"] / truth - 1 > 0.06
+    assert x["arw_lsb_corrected_deg_per_sqrt_h"] == pytest.approx(truth, rel=0.03)
+    assert any("output resolution" in n for n in res.notes)
+
+
+def test_noise_below_one_lsb_is_flagged():
+    rng = np.random.default_rng(16)
+    lsb = 0.061
+    res = calibrate(make_ds(np.round((0.37 + rng.standard_normal(20_000) * 0.01) / lsb) * lsb, 100.0))
+    assert any("quantization-limited" in n for n in res.notes)
+    assert res.json["axes"]["x"]["arw_lsb_corrected_deg_per_sqrt_h"] is None
+
+
+def test_bias_instability_on_flicker_plateau():
+    rng = np.random.default_rng(17)
+    fs, n, b, arw = 100.0, 200_000, 1e-3, 0.001  # B = 3.6 deg/h
+    f = np.fft.rfftfreq(n, 1 / fs)
+    psd = np.zeros_like(f)
+    psd[1:] = b ** 2 / (2 * math.pi * f[1:])  # two-sided S(f) = B²/(2πf), IEEE 952 Eq. C.13
+    flicker = np.fft.irfft(np.fft.rfft(rng.standard_normal(n)) * np.sqrt(psd * fs), n)
+    x = calibrate(make_ds(white(rng, n, fs, arw) + flicker, fs)).json["axes"]["x"]
+    assert x["detected"]["bias_instability"]
+    assert x["bias_instability_deg_per_h"] == pytest.approx(b * 3600, rel=0.15)
+    assert x["arw_deg_per_sqrt_h"] == pytest.approx(arw * 60, rel=0.10)
+
+
+def test_fit_of_pure_model_curve_is_exact():
+    taus = np.logspace(-2, 4, 30)
+    q, nn, b, k = 3e-4, 2e-3, 5e-4, 3e-5
+    avar = 3 * q * q / taus ** 2 + nn * nn / taus + 2 * math.log(2) / math.pi * b * b + k * k * taus / 3
+    r = overlapping_adev(np.random.default_rng(0).standard_normal(10), 1.0)
+    fake = type(r)(taus, np.arange(1, 31), np.sqrt(avar), np.full(30, 1000), np.full(30, 100.0), avar, avar,
+                   np.zeros(30, int), r.confidence, 10**6, 1.0)
+    t = fit_noise_terms(fake)
+    assert (t.q_deg, t.n_deg_rts, t.b_dps, t.k_dps_rts) == pytest.approx((q, nn, b, k), rel=1e-6)
+    assert all(t.dominant.values())
+
+
+# ---- static selection and bad input -----------------------------------------------------------
+def test_uses_only_static_rows():
+    rng = np.random.default_rng(18)
+    fs, n = 100.0, 100_000
+    ref = np.where(np.arange(n) < 40_000, 10.0, 0.0)
+    rate = ref + white(rng, n, fs, 0.005)
+    zeros = np.zeros(n)
+    res = calibrate(make_ds(rate, fs, ref_rate_x_dps=zeros, ref_rate_y_dps=zeros, ref_rate_z_dps=ref))
+    assert res.json["static_samples"] == 60_000
+    assert res.json["static_t_s"][0] == pytest.approx(400.0)
+    assert res.json["axes"]["x"]["arw_deg_per_sqrt_h"] == pytest.approx(0.3, rel=0.10)
+    assert any("40000 moving rows" in n for n in res.notes)
+
+
+def test_no_static_rows_is_input_error():
+    n = 1000
+    ds = make_ds(np.zeros(n), 100.0, source="run_0042.h5", ref_rate_z_dps=np.full(n, 10.0))
+    with pytest.raises(InputError, match=r"run_0042\.h5.*no static rows.*ref_rate_z_dps"):
+        calibrate(ds)
+    with pytest.raises(InputError, match="no static rows"):
+        calibrate_moving_average(ds)
+
+
+def test_time_gap_uses_longest_even_stretch():
+    rng = np.random.default_rng(19)
+    fs, n = 100.0, 30_000
+    ds = make_ds(white(rng, n, fs, 0.005), fs)
+    ds.columns["time_s"][10_000:] += 5.0  # 5 s of lost frames
+    res = calibrate(ds)
+    assert res.json["static_samples"] == 20_000
+    assert any("uneven time step" in n and "rows 10001-30000" in n for n in res.notes)
+
+
+def test_bad_inputs_raise_input_error():
+    rng = np.random.default_rng(20)
+    ok = make_ds(white(rng, 5000, 100.0, 0.005), 100.0)
+    with pytest.raises(InputError, match="at least 64"):
+        calibrate(make_ds(np.zeros(20), 100.0))
+    nan = make_ds(white(rng, 5000, 100.0, 0.005), 100.0)
+    nan.columns["gyro_x_dps"][123] = np.nan
+    with pytest.raises(InputError, match=r"gyro_x_dps.*row 124"):
+        calibrate(nan)
+    with pytest.raises(InputError, match="unknown option"):
+        calibrate(ok, tau=[1.0])
+    with pytest.raises(InputError, match="taus"):
+        calibrate(ok, taus=[-1.0])
+    with pytest.raises(InputError, match="no usable averaging time"):
+        calibrate(ok, taus=[1e6])
+    with pytest.raises(InputError, match="gyro_y_dps"):
+        calibrate(ok, axes=["y"])
+    with pytest.raises(InputError, match="confidence"):
+        calibrate(ok, confidence=1.5)
+    with pytest.raises(InputError, match="no gyro column"):
+        calibrate(Dataset({"time_s": np.arange(100.0)}, {}, "x.csv"))
+    with pytest.raises(InputError, match="buffer_lengths"):
+        calibrate_moving_average(ok, buffer_lengths=[0, 2])
+    with pytest.raises(InputError, match="whole numbers"):
+        calibrate_moving_average(ok, buffer_lengths=[2.5])
+
+
+def test_csv_round_trip(tmp_path):
+    rng = np.random.default_rng(21)
+    fs, n = 50.0, 4000
+    rate = white(rng, n, fs, 0.01)
+    p = tmp_path / "static.csv"
+    lines = ["# sample_rate_hz: 50", "time_s,gyro_x_dps,gyro_z_dps"]
+    lines += [f"{i / fs:.4f},{a:.9f},{b:.9f}" for i, (a, b) in enumerate(zip(rate, -rate))]
+    p.write_text("\n".join(lines) + "\n")
+    res = calibrate(dataset_from_csv(p), taus="0.02, 0.1, 1")
+    assert set(res.json["axes"]) == {"x", "z"}
+    assert res.json["axes"]["x"]["taus_s"] == pytest.approx([0.02, 0.1, 1.0])
+    assert res.json["axes"]["x"]["adev_dps"] == pytest.approx(res.json["axes"]["z"]["adev_dps"], rel=1e-6)
+    assert res.tables[0].rows[0][0] == "x" and len(res.tables[1].rows) == 3
+
+
+def test_detect_lsb():
+    assert detect_lsb(np.arange(-50, 50) * 0.0076 + 0.0) == pytest.approx(0.0076, rel=1e-9)
+    assert detect_lsb(np.random.default_rng(0).standard_normal(1000)) is None
+    assert detect_lsb(np.full(100, 0.5)) is None
+
+
+def test_octave_m():
+    np.testing.assert_array_equal(octave_m(3), [1])
+    np.testing.assert_array_equal(octave_m(64), [1, 2, 4, 8, 16])
+
+
+# ---- moving average (ESTCube-2 3.3) ------------------------------------------------------------
+def test_moving_average_white_noise_follows_inverse_sqrt_n():
+    rng = np.random.default_rng(22)
+    sigma = 0.02
+    res = calibrate_moving_average(make_ds(0.1 + rng.standard_normal(100_000) * sigma, 100.0))
+    x = res.json["axes"]["x"]
+    assert x["n"] == list(DEFAULT_BUFFER_LENGTHS)
+    n = np.array(x["n"], dtype=float)
+    np.testing.assert_allclose(x["std_dps"], sigma / np.sqrt(n), rtol=0.04)
+    np.testing.assert_allclose(x["white_noise_std_dps"], x["std_dps"][0] / np.sqrt(n), rtol=1e-12)
+    assert res.method == "moving-average" and not any("above the white-noise line" in m for m in res.notes)
+    json.dumps(res.json, allow_nan=False)
+
+
+def test_moving_average_flattens_with_drift():
+    rng = np.random.default_rng(23)
+    n = 20_000
+    rate = rng.standard_normal(n) * 0.02 + np.cumsum(rng.standard_normal(n)) * 2e-4
+    res = calibrate_moving_average(make_ds(rate, 100.0), buffer_lengths=(1, 10, 100, 1000, 50_000))
+    x = res.json["axes"]["x"]
+    assert x["n"] == [1, 10, 100, 1000]  # 50 000 exceeds the record
+    assert x["std_dps"][3] > 1.5 * x["white_noise_std_dps"][3]
+    assert any("exceed the 20000-sample" in m for m in res.notes)
+    assert any("above the white-noise line" in m for m in res.notes)
