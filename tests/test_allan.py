@@ -320,3 +320,48 @@ def test_moving_average_flattens_with_drift():
     assert x["std_dps"][3] > 1.5 * x["white_noise_std_dps"][3]
     assert any("exceed the 20000-sample" in m for m in res.notes)
     assert any("above the white-noise line" in m for m in res.notes)
+
+
+# ---- run files (simulated lab) -------------------------------------------------------------------
+def _sim_run(tmp_path, procedure: str, *params: str):
+    from tests.conftest import ROOT, SIM_CONFIG, run_cli
+
+    runs = tmp_path / "runs"
+    args = ["run", str(ROOT / "procedures" / procedure), "--config", str(SIM_CONFIG), "--sim", "--runs-dir", str(runs)]
+    for p in params:
+        args += ["-p", p]
+    r = run_cli(*args)
+    assert r.returncode == 0, r.stdout + r.stderr
+    (path,) = runs.glob("*.h5")
+    return path
+
+
+def test_allan_static_run_uses_static_window(tmp_path):
+    from bench.analysis.dataset import load_dataset
+
+    ds = load_dataset(_sim_run(tmp_path, "allan_static.yaml", "warmup=10 s", "duration=100 s"))
+    res = calibrate(ds)
+    assert res.json["static_samples"] == 10_000  # the 10-s warm-up window is left out
+    assert res.json["static_t_s"][0] == pytest.approx(10.01)
+    assert any("recording window 'static'" in n for n in res.notes)
+    # simulator: 0.005 deg/s/√Hz through a 12.5-Hz low-pass, white, 16-bit output -> N = 0.0222/√100 deg/√s
+    for a in "xyz":
+        ax = res.json["axes"][a]
+        assert ax["arw_deg_per_sqrt_h"] == pytest.approx(0.005 * math.sqrt(math.pi / 2 * 12.5) / 10 * 60, rel=0.10)
+        assert ax["lsb_dps"] == pytest.approx(250.0 / 32768, rel=1e-9)
+    assert calibrate(ds, window="all").json["static_samples"] == 11_000
+    with pytest.raises(InputError, match="no recording window 'hot'.*warmup, static"):
+        calibrate(ds, window="hot")
+
+
+def test_moving_average_sweep_run_uses_board_windows(tmp_path):
+    from bench.analysis.dataset import load_dataset
+
+    ds = load_dataset(_sim_run(tmp_path, "moving_average_sweep.yaml", "n_max=4"))
+    res = calibrate_moving_average(ds)
+    x = res.json["axes"]["x"]
+    assert res.json["mode"] == "board" and x["n"] == [1, 2, 3, 4]
+    assert all(c >= 2000 for c in x["outputs"])
+    np.testing.assert_allclose(x["std_dps"], x["std_dps"][0] / np.sqrt([1, 2, 3, 4]), rtol=0.10)
+    assert calibrate_moving_average(ds, window="all").json["mode"] == "software"
+    assert any("moving average between" in n for n in calibrate(ds).notes)

@@ -12,14 +12,18 @@ static gyro data (method and equations in ``docs/noise.md``).
 
 Both use the static part of the data: rows where every ``ref_rate_*_dps`` column present is 0 deg/s
 (all rows when there is none), and of those the longest stretch sampled evenly (no time gap larger
-than 1.5 sample intervals). Other stretches are left out and said so in a note.
+than 1.5 sample intervals). Other stretches are left out and said so in a note. For a run file with
+a recording window named ``static`` (``procedures/allan_static.yaml``) only that window is used
+(option ``window``), so the warm-up transient stays out.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -67,8 +71,58 @@ class StaticData:
 
 
 # ---- static stretch -----------------------------------------------------------------------------
-def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | None = None) -> StaticData:
-    """Select the longest evenly sampled static stretch of ``ds`` and drop its first ``skip_s`` s.
+_WINDOW = re.compile(r"rows in window '([^']*)'")
+STATIC_WINDOW = "static"
+"""Recording window that ``window="auto"`` selects (``procedures/allan_static.yaml``)."""
+
+
+def run_windows(ds: Dataset) -> dict[str, tuple[float, float]]:
+    """Recording windows of a run file dataset: name -> (start, end) run time (s), from the record
+    steps of the run summary; empty for CSV data or when the run file cannot be summarised. A name
+    recorded twice keeps its last window."""
+    src = ds.source
+    if not src or not src.lower().endswith((".h5", ".hdf5")) or not Path(src).is_file():
+        return {}
+    try:
+        from bench.record.reader import read_run_summary
+
+        summary = read_run_summary(Path(src))
+    except Exception:  # noqa: BLE001 - no summary simply means no windows to choose from
+        return {}
+    out: dict[str, tuple[float, float]] = {}
+    for st in summary.steps:
+        m = _WINDOW.search(st.detail or "")
+        if st.type == "record" and m and st.t_start_s is not None and st.t_end_s is not None:
+            out[m.group(1)] = (float(st.t_start_s), float(st.t_end_s))
+    return out
+
+
+def _window_mask(ds: Dataset, window: str | None, notes: list[str]) -> np.ndarray:
+    """Rows inside the chosen recording window (all rows for ``"all"``/``None`` or when ``"auto"``
+    finds no ``static`` window)."""
+    n = len(ds)
+    if window in (None, "all"):
+        return np.ones(n, dtype=bool)
+    if not isinstance(window, str):
+        raise InputError(f"window must be a recording window name, 'auto' or 'all', got {window!r}")
+    windows = run_windows(ds)
+    name = STATIC_WINDOW if window == "auto" else window
+    if name not in windows:
+        if window == "auto":
+            return np.ones(n, dtype=bool)
+        raise InputError(f"{ds.source or 'dataset'}: no recording window {window!r} "
+                         f"(windows: {', '.join(windows) or 'none; only run files have windows'})")
+    t0, t1 = windows[name]
+    t = np.asarray(ds["time_s"], dtype=float)
+    notes.append(f"used the run's recording window {name!r} (t = {t0:g}-{t1:g} s)")
+    return (t > t0) & (t <= t1)
+
+
+def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | str | None = None,
+                window: str | None = "auto") -> StaticData:
+    """Select the longest evenly sampled static stretch of ``ds`` (inside recording ``window`` of a
+    run file: ``"auto"`` = the ``static`` window when there is one, ``"all"`` = every row) and drop
+    its first ``skip_s`` s.
 
     Raises :class:`InputError` (naming the source and column) when there is no gyro column, no
     static row, too few samples, or a non-finite gyro value in the stretch.
@@ -85,9 +139,13 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | None = N
         raise InputError(f"{src}: cannot tell the sample rate (sample_rate_hz = {fs!r})", field="time_s")
     t = np.asarray(ds["time_s"], dtype=float)
 
+    notes: list[str] = []
+    in_window = _window_mask(ds, window, notes)
+    if not in_window.any():
+        raise InputError(f"{src}: recording window {window!r} holds no samples", field="time_s")
     refs = [REF_RATE[a] for a in AXES if REF_RATE[a] in ds.columns]
     if refs:
-        static = np.ones(n, dtype=bool)
+        static = in_window.copy()
         for c in refs:
             r = np.asarray(ds[c], dtype=float)
             static &= np.isfinite(r) & (np.abs(r) <= STATIC_TOLERANCE_DPS)
@@ -95,7 +153,7 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | None = N
             raise InputError(f"{src}: no static rows: {', '.join(refs)} are never all 0 deg/s; the noise analysis "
                              "needs a recording with the unit at rest", field=refs[0])
     else:
-        static = np.ones(n, dtype=bool)
+        static = in_window
 
     dt = np.diff(t) * fs
     even = (dt > 1.0 / GAP_FACTOR) & (dt < GAP_FACTOR)
@@ -107,21 +165,22 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | None = N
     lengths = np.where(static[starts], stops - starts + 1, 0)
     j = int(np.argmax(lengths))
     best_len, a0, b0 = int(lengths[j]), int(starts[j]), int(stops[j])
-    notes: list[str] = []
-    gaps = int(np.count_nonzero(~even))
+    gaps = int(np.count_nonzero(~even[in_window[1:] & in_window[:-1]]))
     n_static = int(np.count_nonzero(static))
-    if best_len < n or gaps:
+    n_window = int(np.count_nonzero(in_window))
+    if best_len < n_window or gaps:
         parts = []
-        if refs and n_static < n:
-            parts.append(f"{n - n_static} moving rows")
+        if refs and n_static < n_window:
+            parts.append(f"{n_window - n_static} moving rows")
         if gaps:
-            k = int(np.argmax(np.abs(np.log(np.clip(dt, 1e-12, None)))))
+            badness = np.where(in_window[1:] & in_window[:-1], np.abs(np.log(np.clip(dt, 1e-12, None))), -1.0)
+            k = int(np.argmax(badness))
             parts.append(f"{gaps} uneven time step(s) (worst {np.diff(t)[k]:.6g} s at t = {t[k]:.6g} s, nominal "
                          f"{1 / fs:.6g} s)")
         if n_static > best_len:
             parts.append(f"{n_static - best_len} static samples in other stretches")
         notes.append(f"{src}: analysed the longest evenly sampled static stretch, rows {a0 + 1}-{b0 + 1} "
-                     f"(t = {t[a0]:.6g}-{t[b0]:.6g} s, {best_len} samples); left out {n - best_len} rows"
+                     f"(t = {t[a0]:.6g}-{t[b0]:.6g} s, {best_len} samples); left out {n_window - best_len} rows"
                      + (f" ({'; '.join(parts)})" if parts else ""))
     if skip_s:
         if not (math.isfinite(skip_s) and skip_s >= 0):
@@ -254,21 +313,27 @@ def analyse_axis(rate: np.ndarray, fs: float, taus: Sequence[float] | None = Non
 
 
 def calibrate(ds: Dataset, *, taus: Sequence[float] | str | None = None, confidence: float = ONE_SIGMA,
-              skip_s: float = 0.0, axes: Sequence[str] | str | None = None, **opts: Any) -> CalibrationResult:
+              skip_s: float = 0.0, axes: Sequence[str] | str | None = None, window: str | None = "auto",
+              **opts: Any) -> CalibrationResult:
     """Method ``noise``: Allan-deviation noise read-outs of every gyro axis of ``ds``.
 
     Options: ``taus`` averaging times (s; default octaves m = 1, 2, 4, … ≤ n/4 samples),
     ``confidence`` level of the ADEV intervals (default 0.683, ±1σ), ``skip_s`` seconds dropped at
-    the start of the static stretch (warm-up; default 0), ``axes`` subset of x, y, z.
+    the start of the static stretch (warm-up; default 0), ``axes`` subset of x, y, z, ``window`` the
+    run file's recording window (default ``"auto"``: ``static`` when recorded, else every row;
+    ``"all"``: every row).
     JSON shape: see ``docs/noise.md``. Raises :class:`InputError` for bad data or options.
     """
     _check_options("noise", opts)
     if not (isinstance(confidence, (int, float)) and 0 < confidence < 1):
         raise InputError(f"confidence must lie between 0 and 1, got {confidence!r}")
     tau_list = _numbers(taus, "taus")
-    sd = static_data(ds, float(skip_s), axes)
+    sd = static_data(ds, float(skip_s), axes, window)
     use_axes = _axes(ds, axes)
     notes = list(sd.notes)
+    if window in ("auto", "all") and _board_windows(ds):
+        notes.append("this run changes the board's moving average between its N<k> windows: the Allan deviation "
+                     "mixes them (use the moving-average method, or window=N1)")
     out_axes: dict[str, Any] = {}
     rows: list[list[Any]] = []
     per_axis: dict[str, AxisNoise] = {}
@@ -394,13 +459,21 @@ def moving_average_std(rate: np.ndarray, buffer_lengths: Sequence[int]) -> tuple
 
 def calibrate_moving_average(ds: Dataset, buffer_lengths: Sequence[int] | str = DEFAULT_BUFFER_LENGTHS, *,
                              skip_s: float = 0.0, axes: Sequence[str] | str | None = None,
-                             **opts: Any) -> CalibrationResult:
+                             window: str | None = "auto", **opts: Any) -> CalibrationResult:
     """Method ``moving-average``: standard deviation of the moving-averaged static output versus
     the buffer length N (ESTCube-2 3.3, 4.1), per gyro axis, with the white-noise line σ₁/√N.
 
+    Two sources of the averaged output:
+
+    * ``"software"``: the N-sample boxcar applied here to the static stretch (see
+      :func:`static_data`) for each N in ``buffer_lengths``; lengths longer than the stretch minus one
+      sample are left out (with a note);
+    * ``"board"``: a run of ``procedures/moving_average_sweep.yaml`` recorded windows ``N1``, ``N2``, …
+      with the board's own moving average set to N; with ``window="auto"`` (default) those windows are
+      used as they are (the std of each window's samples) and ``buffer_lengths`` is not applied.
+
     JSON: ``{"axes": {"x": {"n": [...], "std_dps": [...], "white_noise_std_dps": [...], "outputs": [...]}},
-    "sample_rate_hz": f, "static_samples": n}``. Buffer lengths longer than the static stretch
-    minus one sample are left out (with a note).
+    "sample_rate_hz": f, "static_samples": n, "mode": "software" | "board"}``.
     """
     _check_options("moving-average", opts)
     raw = _numbers(buffer_lengths, "buffer_lengths")
@@ -408,26 +481,52 @@ def calibrate_moving_average(ds: Dataset, buffer_lengths: Sequence[int] | str = 
     if any(v != int(v) for v in raw):
         raise InputError(f"buffer_lengths must be whole numbers of samples, got {buffer_lengths!r}")
     lengths = sorted({int(v) for v in raw})
-    sd = static_data(ds, float(skip_s), axes)
     use_axes = _axes(ds, axes)
-    notes = list(sd.notes)
-    n = len(sd.ds)
-    usable = [v for v in lengths if v <= n - 1]
-    if len(usable) < len(lengths):
-        notes.append(f"buffer lengths {', '.join(str(v) for v in lengths if v > n - 1)} exceed the {n}-sample static "
-                     "stretch and were left out")
-    if not usable:
-        raise InputError(f"{ds.source or 'dataset'}: no buffer length fits the {n}-sample static stretch")
+    board = _board_windows(ds) if window == "auto" else {}
+    notes: list[str] = []
     out_axes: dict[str, Any] = {}
     cols: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if board:
+        usable = sorted(board)
+        fs = ds.sample_rate_hz
+        t = np.asarray(ds["time_s"], dtype=float)
+        masks = [(t > board[k][0]) & (t <= board[k][1]) for k in usable]
+        counts = np.array([int(np.count_nonzero(m)) for m in masks])
+        if np.any(counts < 2):
+            bad = [f"N{k}" for k, c in zip(usable, counts) if c < 2]
+            raise InputError(f"{ds.source}: recording window(s) {', '.join(bad)} hold fewer than 2 samples")
+        notes.append(f"board moving average: used the run's {len(usable)} recording windows N{usable[0]}-N{usable[-1]} "
+                     "(the board averaged; buffer_lengths not applied)")
+        n_static = int(counts.sum())
+        for a in use_axes:
+            v = np.asarray(ds[GYRO[a]], dtype=float)
+            std = np.array([float(np.std(v[m], ddof=1)) for m in masks])
+            white = std[0] * np.sqrt(usable[0] / np.array(usable, dtype=float))
+            cols[a] = (std, white)
+            out_axes[a] = {"n": list(usable), "std_dps": std.tolist(), "white_noise_std_dps": white.tolist(),
+                           "outputs": counts.tolist()}
+        mode = "board"
+    else:
+        sd = static_data(ds, float(skip_s), axes, window)
+        notes.extend(sd.notes)
+        fs = sd.fs
+        n_static = len(sd.ds)
+        usable = [v for v in lengths if v <= n_static - 1]
+        if len(usable) < len(lengths):
+            notes.append(f"buffer lengths {', '.join(str(v) for v in lengths if v > n_static - 1)} exceed the "
+                         f"{n_static}-sample static stretch and were left out")
+        if not usable:
+            raise InputError(f"{ds.source or 'dataset'}: no buffer length fits the {n_static}-sample static stretch")
+        for a in use_axes:
+            std, counts, s1 = moving_average_std(sd.ds[GYRO[a]], usable)
+            white = s1 / np.sqrt(np.array(usable, dtype=float))
+            cols[a] = (std, white)
+            out_axes[a] = {"n": list(usable), "std_dps": std.tolist(), "white_noise_std_dps": white.tolist(),
+                           "outputs": counts.tolist()}
+        mode = "software"
     for a in use_axes:
-        std, counts, s1 = moving_average_std(sd.ds[GYRO[a]], usable)
-        white = s1 / np.sqrt(np.array(usable, dtype=float))
-        cols[a] = (std, white)
-        out_axes[a] = {"n": list(usable), "std_dps": std.tolist(), "white_noise_std_dps": white.tolist(),
-                       "outputs": counts.tolist()}
-        excess = std / np.where(white > 0, white, np.inf)
-        over = [nb for nb, e in zip(usable, excess) if e > 1.2]
+        std, white = cols[a]
+        over = [nb for nb, sv, wv in zip(usable, std, white) if wv > 0 and sv > 1.2 * wv]
         if over:
             notes.append(f"{a}: from N = {over[0]} the std is more than 20 % above the white-noise line: correlated "
                          "noise (drift, bias instability, filtering) limits what a longer buffer gains")
@@ -435,7 +534,21 @@ def calibrate_moving_average(ds: Dataset, buffer_lengths: Sequence[int] | str = 
     for a in use_axes:
         headers += [f"std {a} (deg/s)", f"{a} white σ₁/√N (deg/s)"]
     rows = [[nb] + [_sig(v) for a in use_axes for v in (cols[a][0][k], cols[a][1][k])] for k, nb in enumerate(usable)]
+    how = "board moving average, one window per N" if mode == "board" else "moving average applied to the static stretch"
     tables = [ResultTable(f"Moving-average buffer length vs output noise from {ds.source or 'dataset'} "
-                          f"({n} static samples at {sd.fs:g} Hz)", headers, rows)]
-    payload = {"axes": out_axes, "sample_rate_hz": sd.fs, "static_samples": n}
+                          f"({how}; {n_static} samples at {fs:g} Hz)", headers, rows)]
+    payload = {"axes": out_axes, "sample_rate_hz": float(fs), "static_samples": n_static, "mode": mode}
     return CalibrationResult("moving-average", payload, tables, None, notes)
+
+
+_BOARD_WINDOW = re.compile(r"^N(\d+)$")
+
+
+def _board_windows(ds: Dataset) -> dict[int, tuple[float, float]]:
+    """Windows ``N<k>`` of a moving-average sweep run: buffer length k -> (start, end) run time (s)."""
+    out: dict[int, tuple[float, float]] = {}
+    for name, span in run_windows(ds).items():
+        m = _BOARD_WINDOW.match(name)
+        if m and int(m.group(1)) >= 1:
+            out[int(m.group(1))] = span
+    return out
