@@ -35,6 +35,8 @@ class SimConfig:
     serial: str = "SIM-0001"
     bit_fail_mask: int = 0
     model: ImuModelParams = field(default_factory=ImuModelParams)
+    sensor_spec: Any = None
+    """The loaded model file when it is not ``imu_simple`` (:class:`bench.model.loader.SensorModelSpec`)."""
     model_path: str = ""
     speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
     open_channels: list[int] = field(default_factory=list)
@@ -293,18 +295,42 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
     model_rel = f.get("sensor_model", str)
     if model_rel is not None:
         sim.model_path = str(base / model_rel)
-        sim.model = _sensor_model(base / model_rel, f.map["sensor_model"].location, errors)
+        model = _sensor_model(base / model_rel, f.map["sensor_model"].location, errors)
+        if isinstance(model, ImuModelParams):
+            sim.model = model
+        else:
+            sim.sensor_spec = model
     f.check_unknown()
     return sim
 
 
-def _sensor_model(path: Path, ref: Location, errors: list[InputError]) -> ImuModelParams:
+def _other_sensor_model(path: Path, ref: Location, errors: list[InputError]) -> Any:
+    """A model file other than ``imu_simple`` (bench/model/loader.py validates it); None if bad."""
+    from bench.model.loader import load_sensor_model
+
+    try:
+        spec = load_sensor_model(path)
+    except InputErrors as exc:
+        errors.extend(exc.errors)
+        return None
+    except InputError as exc:
+        errors.append(exc)
+        return None
+    if spec.gyro is None and spec.imu is None:
+        errors.append(InputError(f"model {spec.model!r} cannot drive the ACS board (expected imu_simple or npsat1_gyro)", ref, "sensor_model"))
+        return None
+    return spec
+
+
+def _sensor_model(path: Path, ref: Location, errors: list[InputError]) -> Any:
     try:
         src = load_yaml(path, "sensor model")
     except InputError as exc:
         errors.append(InputError(f"sensor model {path}: {exc.message}", exc.location if exc.location and exc.location.line else ref, "sensor_model"))
         return ImuModelParams()
     data: dict[str, Any] = src.root.plain()
+    if isinstance(data, dict) and data.get("model") not in (None, "imu_simple"):
+        return _other_sensor_model(path, ref, errors)
     if data.pop("schema", None) != SENSOR_MODEL_SCHEMA:
         errors.append(InputError(f"expected schema: {SENSOR_MODEL_SCHEMA}", src.root.location, "schema"))
     if data.pop("model", None) != "imu_simple":

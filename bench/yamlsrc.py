@@ -75,7 +75,7 @@ def _convert(node: yaml.Node, path: str, budget: _Budget) -> Node:
         loader = _SAFE("")
         try:
             value = loader.construct_object(node, deep=True)
-        except (yaml.YAMLError, ValueError, OverflowError) as exc:  # bad !!int/!!float/!!timestamp text, huge ints
+        except Exception as exc:  # noqa: BLE001 - an explicit tag on text it does not fit (!!int abc, !!timestamp x) raises anything
             raise InputError(f"cannot read value: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", loc) from None
         finally:
             loader.dispose()
@@ -101,6 +101,8 @@ def _convert(node: yaml.Node, path: str, budget: _Budget) -> Node:
                     raise InputError("mapping keys must be plain names", kloc)
                 _convert(key_node, path, budget)  # refuses tags SafeLoader refuses (!!python/...)
                 key = str(key_node.value)
+                if not key.isprintable():  # a line break or control character would break the one-line messages
+                    raise InputError(f"mapping key {key!r} is not a plain name", kloc)
                 if key in out:
                     raise InputError(f"duplicate key {key!r} (first at line {keys[key].line})", kloc, key)
                 out[key] = _convert(value_node, path, budget)

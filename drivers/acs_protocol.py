@@ -14,6 +14,7 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
+from bench.errors import ProtocolError
 from drivers.crc import crc16_xmodem, crc16_xmodem_rows
 
 SYNC = b"\xA5\x5A"
@@ -358,9 +359,9 @@ def frame_name(ftype: int) -> str:
 
 
 def parse_nak(payload: bytes) -> tuple[int, int]:
-    """(refused command, NakCode value)."""
+    """(refused command, NakCode value); :class:`ProtocolError` for a payload of another length."""
     if len(payload) != 2:
-        raise ValueError(f"NAK payload must be 2 bytes, got {len(payload)}")
+        raise ProtocolError(f"acs_board: NAK payload must be 2 bytes, got {len(payload)}")
     return payload[0], payload[1]
 
 
@@ -375,9 +376,10 @@ CONFIG_FORMAT = "<HBBBI"
 
 
 def parse_config(payload: bytes) -> dict:
-    """GET_CONFIG reply: output data rate (Hz), moving-average N, streaming, sensor power, baud rate."""
+    """GET_CONFIG reply: output data rate (Hz), moving-average N, streaming, sensor power, baud rate
+    (:class:`ProtocolError` for a payload of another length)."""
     if len(payload) != struct.calcsize(CONFIG_FORMAT):
-        raise ValueError(f"GET_CONFIG payload must be {struct.calcsize(CONFIG_FORMAT)} bytes, got {len(payload)}")
+        raise ProtocolError(f"acs_board: GET_CONFIG payload must be {struct.calcsize(CONFIG_FORMAT)} bytes, got {len(payload)}")
     odr, n, streaming, power, baud = struct.unpack(CONFIG_FORMAT, payload)
     return {"odr_hz": odr, "moving_avg_n": n, "streaming": bool(streaming), "sensor_power": bool(power), "baud": baud}
 
@@ -387,7 +389,7 @@ def encode_config(odr_hz: int, moving_avg_n: int, streaming: bool, sensor_power:
 
 
 def parse_bit(payload: bytes) -> int:
-    """RUN_BIT reply: failed-subsystem mask (:class:`BitFailure` bits; 0 = passed)."""
+    """RUN_BIT reply: failed-subsystem mask (:class:`BitFailure` bits; 0 = passed); :class:`ProtocolError` if not 2 bytes."""
     if len(payload) != 2:
-        raise ValueError(f"RUN_BIT payload must be 2 bytes, got {len(payload)}")
+        raise ProtocolError(f"acs_board: RUN_BIT payload must be 2 bytes, got {len(payload)}")
     return struct.unpack("<H", payload)[0]

@@ -18,7 +18,7 @@ from drivers.transport import LineChannel, open_serial
 
 DEFAULT_BAUDRATE = 115200  # GRBL 1.1 default
 N_MAX = 65535
-_STATUS = re.compile(r"^<(?P<state>\w+)\|N:(?P<n>-?\d+)\|Pos:(?P<pos>-?[\d.]+)>$")
+_STATUS = re.compile(r"^<(?P<state>[A-Za-z]+)\|N:(?P<n>-?[0-9]{1,9})\|Pos:(?P<pos>-?[0-9]{1,9}(?:\.[0-9]{0,9})?)>$")
 _VERSION = re.compile(r"^\[VER:(?P<firmware>[^:\]]*):(?P<serial>[^\]]*)\]$")
 
 

@@ -111,7 +111,14 @@ class ThermocoupleReader:
 
     def reference_junction_c(self, channel: int) -> float:
         """Reference (cold) junction temperature in °C used for ``channel``."""
-        return float(self.channel.query(f"SENS:TEMP:TRAN:TC:RJUN? (@{channel})"))
+        answer = self.channel.query(f"SENS:TEMP:TRAN:TC:RJUN? (@{channel})")
+        try:
+            value = float(answer)
+        except ValueError:
+            raise ProtocolError(f"thermocouples: RJUN? answered {answer!r}") from None
+        if not math.isfinite(value):
+            raise ProtocolError(f"thermocouples: RJUN? answered {answer!r}, not a temperature")
+        return value
 
     def safe_state(self) -> None:
         """A logger only measures: nothing to make safe."""

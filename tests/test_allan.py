@@ -262,6 +262,10 @@ def test_bad_inputs_raise_input_error():
         calibrate(ok, axes=["y"])
     with pytest.raises(InputError, match="confidence"):
         calibrate(ok, confidence=1.5)
+    wrong_rate = make_ds(white(rng, 5000, 100.0, 0.005), 100.0)
+    wrong_rate.meta["sample_rate_hz"] = 50.0
+    with pytest.raises(InputError, match=r"time_s.*do not match sample_rate_hz = 50 Hz"):
+        calibrate(wrong_rate)
     with pytest.raises(InputError, match="no gyro column"):
         calibrate(Dataset({"time_s": np.arange(100.0)}, {}, "x.csv"))
     with pytest.raises(InputError, match="buffer_lengths"):

@@ -264,6 +264,9 @@ def test_run_to_run_bias_drawn_once_per_power_on():
     assert np.allclose(a, a[0]) and np.allclose(b, a[0])
     c = model.evaluate(stationary_inputs(10.0, 10.0, t0_s=100.0, power_on_at_s=100.0))  # power cycled
     assert np.allclose(c, c[0]) and not np.allclose(c[0], a[0])
+    # a short run after a power cycle: power_on_s does not drop below the last one, the instant moves
+    d = model.evaluate(stationary_inputs(10.0, 10.0, t0_s=200.0, power_on_at_s=180.0))
+    assert not np.allclose(d[0], c[0])
     draws = np.array([gyro_output(p, stationary_inputs(1.0, 1.0), np.random.default_rng(s))[0] for s in range(400)])
     assert draws.std() == pytest.approx(0.016 / 3, rel=0.1)
 
@@ -358,6 +361,17 @@ def test_effects_are_stored_and_applied_lazily(monkeypatch):
     calls.clear()
     parse_sensor_model(HEAD).gyro_model(np.random.default_rng(0)).evaluate(stationary_inputs(1.0, 10.0))
     assert calls == []
+
+
+def test_effects_validated_against_the_vocabulary_and_applied_for_real():
+    pytest.importorskip("bench.model.effects")
+    with pytest.raises(InputError) as err:
+        parse_sensor_model(HEAD + "effects:\n  - {effect: no_such_term, axis: z}\n", "m.yaml")
+    assert "m.yaml:4:" in str(err.value) and err.value.field == "effects[0]"
+    spec = parse_sensor_model(HEAD + "effects:\n  - {effect: warmup_transient, axis: z, params: {amplitude_dps: 0.5, tau_s: 10.0}}\n")
+    out = spec.gyro_model(np.random.default_rng(0)).evaluate(stationary_inputs(2.0, 1.0))
+    assert out[:, 2] == pytest.approx(0.5 * np.exp(-np.array([0.0, 1.0]) / 10.0))
+    assert out[:, :2] == pytest.approx(np.zeros((2, 2)))
 
 
 # ---- NASA model (seed 001 section III) -----------------------------------------------------------

@@ -10,8 +10,8 @@ Definitions (rate Ω in deg/s, ``n`` samples at f_s Hz, τ₀ = 1/f_s, τ = m·�
       σ²(τ) = Σ_{k=0}^{M−1} (x_{k+2m} − 2x_{k+m} + x_k)² / (2 τ² M),   M = n + 1 − 2m
 
   ``M`` is the number of overlapping terms (``n_terms``). Each τ costs O(n): the second differences
-  are formed block by block (L2-sized buffers, no temporaries of length n) and summed with a dot
-  product. The result equals ``allantools.oadev(rate, rate=f_s, data_type="freq", taus=...)``.
+  are formed block by block for all τ at once (cache-sized buffers, no temporaries of length n) and
+  summed with a dot product. The result equals ``allantools.oadev(rate, rate=f_s, data_type="freq", taus=...)``.
 * confidence intervals: chi-squared with equivalent degrees of freedom (NIST SP 1065 Eq. 45:
   edf·σ̂²/χ²_{p}(edf)), the edf from the simple noise-type formulas of NIST SP 1065 Table 5
   (Howe, Allan and Barnes 1981; Riley's handbook) for white PM (α = +2), flicker PM (+1), white FM
@@ -45,8 +45,9 @@ ONE_SIGMA = math.erf(1 / math.sqrt(2))
 STOP_RATIO = 4
 """Default largest averaging factor is n/STOP_RATIO (Stable32's stop ratio for overlapping ADEV)."""
 
-BLOCK = 1 << 16
-"""Samples per block of the second-difference kernel (two float64 buffers stay in L2 cache)."""
+BLOCK = 1 << 13
+"""Start indices per block of the second-difference kernel: the block's windows of x for every τ
+(one per distinct offset m, 2m) and the two buffers fit a 1 MiB L2 cache."""
 
 FLICKER_FLOOR = math.sqrt(2 * math.log(2) / math.pi)
 """σ(τ)/B on the flicker (bias instability) plateau: 0.6643 (IEEE Std 952 Eq. C.14)."""
@@ -128,10 +129,13 @@ def overlapping_adev(
         raise InputError(f"sample rate must be a positive number of Hz, got {fs!r}")
     if not 0 < confidence < 1:
         raise InputError(f"confidence must lie between 0 and 1, got {confidence!r}")
-    finite = np.isfinite(y)
-    if not finite.all():
-        i = int(np.argmin(finite))
-        raise InputError(f"rate sample {i} is {y[i]!r}: Allan deviation needs finite values")
+    total = float(y.sum())  # NaN/inf propagate: one pass checks every sample and gives the mean
+    if not math.isfinite(total):
+        bad = np.flatnonzero(~np.isfinite(y))
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(f"rate sample {i} is {y[i]!r}: Allan deviation needs finite values")
+        total = float(np.sum(y / n)) * n  # finite values whose sum overflows
 
     if taus is None:
         m = octave_m(n)
@@ -145,7 +149,7 @@ def overlapping_adev(
             raise InputError(f"no usable averaging time in {list(t)} s for {n} samples at {fs:g} Hz "
                              f"(τ must lie between {1 / fs:g} s and {(n - 1) / 2 / fs:g} s)")
 
-    x = _phase_samples(y)  # Σ(Ω − Ω̄) in units of rate·τ₀ (the 1/f_s factor is applied at the end)
+    x = _phase_samples(y, total / n)  # Σ(Ω − Ω̄) in units of rate·τ₀ (the 1/f_s factor is applied at the end)
     sums = _second_difference_sums(x, m)
     n_terms = (n + 1 - 2 * m).astype(np.int64)
     adev = np.sqrt(sums / (2.0 * n_terms)) / m  # rate units: (Σv²/2M)^½ / (m τ₀) with v in rate·τ₀
@@ -155,43 +159,50 @@ def overlapping_adev(
     return AllanResult(m / float(fs), m, adev, n_terms, edf, lo, hi, alpha_arr, float(confidence), n, float(fs))
 
 
-def _phase_samples(y: np.ndarray) -> np.ndarray:
+def _phase_samples(y: np.ndarray, mean: float | None = None) -> np.ndarray:
     """x₀ = 0, x_k = Σ_{i<k}(y_i − ȳ): phase in units of (rate × sample interval), length n + 1."""
     x = np.empty(y.shape[0] + 1)
     x[0] = 0.0
-    np.subtract(y, y.mean(), out=x[1:])
+    np.subtract(y, y.mean() if mean is None else mean, out=x[1:])
     np.cumsum(x[1:], out=x[1:])
     return x
 
 
 def _second_difference_sums(x: np.ndarray, ms: np.ndarray, block: int = BLOCK) -> np.ndarray:
-    """Σ_k (x_{k+2m} − 2x_{k+m} + x_k)² for each m, k = 0 … len(x) − 2m − 1.
+    """Σ_k (x_{k+2m} − 2x_{k+m} + x_k)² for each m (ascending), k = 0 … len(x) − 2m − 1.
 
-    Written as D_{k+m} − D_k with D_k = x_{k+m} − x_k, computed per block into preallocated
-    buffers: memory traffic is a streaming read of x (no length-n temporaries).
+    The start indices k are walked in blocks; within a block every m is accumulated while the
+    block's data are in cache (blocks outer, τ inner), so x streams from memory about once per
+    distinct offset instead of once per τ. For m ≤ block the second difference is D_{k+m} − D_k with
+    D_k = x_{k+m} − x_k (two subtractions), otherwise three; buffers are preallocated and reused,
+    the sum of squares is a BLAS dot product per block.
     """
-    out = np.empty(ms.shape[0])
+    m_list = [int(v) for v in ms]
+    size = x.shape[0]
+    totals = [size - 2 * m for m in m_list]
+    acc = [0.0] * len(m_list)
     buf_d = np.empty(2 * block)
     buf_v = np.empty(block)
-    size = x.shape[0]
-    for i, m in enumerate(int(v) for v in ms):
-        total = size - 2 * m
-        acc = 0.0
-        for a in range(0, total, block):
-            ln = min(block, total - a)
+    sub, dot = np.subtract, np.dot
+    for a in range(0, max(totals), block):
+        for i, m in enumerate(m_list):
+            ln = totals[i] - a
+            if ln <= 0:
+                continue
+            if ln > block:
+                ln = block
             v = buf_v[:ln]
             if m <= block:
                 d = buf_d[:ln + m]  # D_a … D_{a+ln+m-1}
-                np.subtract(x[a + m:a + 2 * m + ln], x[a:a + m + ln], out=d)
-                np.subtract(d[m:], d[:ln], out=v)
+                sub(x[a + m:a + 2 * m + ln], x[a:a + m + ln], out=d)
+                sub(d[m:], d[:ln], out=v)
             else:
                 d = buf_d[:ln]
-                np.subtract(x[a + 2 * m:a + 2 * m + ln], x[a + m:a + m + ln], out=v)
-                np.subtract(x[a + m:a + m + ln], x[a:a + ln], out=d)
-                np.subtract(v, d, out=v)
-            acc += float(np.dot(v, v))
-        out[i] = acc
-    return out
+                sub(x[a + 2 * m:a + 2 * m + ln], x[a + m:a + m + ln], out=v)
+                sub(x[a + m:a + m + ln], x[a:a + ln], out=d)
+                sub(v, d, out=v)
+            acc[i] += float(dot(v, v))
+    return np.array(acc)
 
 
 def edf_simple(n_phase: int, m: np.ndarray | int, alpha: np.ndarray | int) -> np.ndarray:

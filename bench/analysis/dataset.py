@@ -174,22 +174,26 @@ def dataset_from_run(path: str | Path) -> Dataset:
         raise InputError(f"{p}: no ACS board stream in this run (streams: {', '.join(sorted(streams)) or 'none'}); "
                          "the analysis needs the sensor outputs")
     board = read_stream(p, "acs_board")
-    t = np.asarray(board["time"], dtype=float)
-    keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
+    t = _column(p, board, "acs_board", "time")
+    # keep the rows whose time is finite and later than every row kept before it (a repeated or
+    # backward time, or NaN from a damaged file, would break "time_s strictly increasing")
+    finite = np.isfinite(t)
+    latest = np.maximum.accumulate(np.where(finite, t, -np.inf))
+    keep = finite & (t > np.concatenate([[-np.inf], latest[:-1]]))
     t = t[keep]
     cols: dict[str, np.ndarray] = {"time_s": t}
-    gyro = np.asarray(board["gyro"], dtype=float)[keep]
-    accel = np.asarray(board["accel"], dtype=float)[keep]
+    gyro = _column(p, board, "acs_board", "gyro", 3)[keep]
+    accel = _column(p, board, "acs_board", "accel", 3)[keep]
     for k, a in enumerate(AXES):
         cols[GYRO[a]] = gyro[:, k]
         cols[ACCEL[a]] = accel[:, k]
-    cols["temp_c"] = np.asarray(board["temp"], dtype=float)[keep][:, 0]
+    cols["temp_c"] = _column(p, board, "acs_board", "temp", 1)[keep][:, 0]
     cols["power_on_s"] = t - (t[0] if t.size else 0.0)
 
     if "rate_table/monitor" in streams and t.size:
         mon = read_stream(p, "rate_table/monitor")
-        tm = np.asarray(mon["time"], dtype=float)
-        rate = _interp(t, tm, np.asarray(mon["rate"], dtype=float))
+        tm = _column(p, mon, "rate_table/monitor", "time")
+        rate = _interp(t, tm, _column(p, mon, "rate_table/monitor", "rate"))
         ups = [(e.t_s, m.group(1)) for e in summary.events if (m := _MOUNT_PROMPT.search(e.message))]
         ref = np.zeros((t.size, 3))
         for i, (t0, up) in enumerate(ups or [(-math.inf, "z")]):
@@ -198,12 +202,12 @@ def dataset_from_run(path: str | Path) -> Dataset:
             ref[sel] = np.outer(rate[sel], mount_matrix(up)[:, 2])
         for k, a in enumerate(AXES):
             cols[REF_RATE[a]] = ref[:, k]
-        cols["table_angle_deg"] = _interp(t, tm, np.asarray(mon["angle"], dtype=float))
+        cols["table_angle_deg"] = _interp(t, tm, _column(p, mon, "rate_table/monitor", "angle"))
     if "tvac/monitor" in streams and t.size:
         mon = read_stream(p, "tvac/monitor")
-        tm = np.asarray(mon["time"], dtype=float)
-        cols["chamber_temp_c"] = _interp(t, tm, np.asarray(mon["air_temp"], dtype=float))
-        pressure = np.clip(np.asarray(mon["pressure"], dtype=float), 1e-12, None)
+        tm = _column(p, mon, "tvac/monitor", "time")
+        cols["chamber_temp_c"] = _interp(t, tm, _column(p, mon, "tvac/monitor", "air_temp"))
+        pressure = np.clip(_column(p, mon, "tvac/monitor", "pressure"), 1e-12, None)
         cols["pressure_torr"] = np.exp(_interp(t, tm, np.log(pressure)))
     meta: dict[str, float | str] = {k: v for k, v in summary.attrs.items() if isinstance(v, str)}
     lat = _latitude_from_config(summary.config_text)
@@ -229,6 +233,22 @@ def _dataset_from_import(p: Path, summary, stream: dict[str, np.ndarray]) -> Dat
     return Dataset(cols, meta, str(p))
 
 
+def _column(p: Path, stream: dict[str, np.ndarray], key: str, name: str, width: int | None = None) -> np.ndarray:
+    """Column ``name`` of stream ``key`` as floats: one value per row, or ``width`` or more per row
+    (axes, channels). A damaged or foreign file that does not have it is an :class:`InputError`."""
+    if name not in stream:
+        raise InputError(f"{p}: stream {key!r} has no column {name!r} (columns: {', '.join(stream)}); "
+                         "the analysis needs it")
+    try:
+        a = np.asarray(stream[name], dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{p}: column {name!r} of stream {key!r} is not numeric ({stream[name].dtype})") from None
+    if (a.ndim != 1) if width is None else (a.ndim != 2 or a.shape[1] < width):
+        expected = "one value per row" if width is None else f"{width} values per row"
+        raise InputError(f"{p}: column {name!r} of stream {key!r} has shape {a.shape}, expected {expected}")
+    return a
+
+
 def _interp(t: np.ndarray, tm: np.ndarray, v: np.ndarray) -> np.ndarray:
     if tm.size == 0:
         return np.full(t.shape, np.nan)
@@ -243,7 +263,7 @@ def _latitude_from_config(text: str | None) -> float | None:
     try:
         data = yaml.safe_load(text)
         lat = (data.get("world") or {}).get("latitude")
-    except (yaml.YAMLError, AttributeError):
+    except Exception:  # noqa: BLE001 - a config text we cannot read (damaged file) only means no latitude
         return None
     if lat is None:
         return None

@@ -137,6 +137,7 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | str | No
     fs = ds.sample_rate_hz
     if not (math.isfinite(fs) and fs > 0):
         raise InputError(f"{src}: cannot tell the sample rate (sample_rate_hz = {fs!r})", field="time_s")
+    fs = float(f"{fs:.10g}")  # 100.00000000009 Hz from rounded time stamps is 100 Hz
     t = np.asarray(ds["time_s"], dtype=float)
 
     notes: list[str] = []
@@ -156,6 +157,11 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | str | No
         static = in_window
 
     dt = np.diff(t) * fs
+    pair = in_window[1:] & in_window[:-1]
+    typical = float(np.median(dt[pair])) if pair.any() else 1.0
+    if not 1.0 / GAP_FACTOR < typical < GAP_FACTOR:
+        raise InputError(f"{src}: time_s steps (median {typical / fs:.6g} s) do not match sample_rate_hz = {fs:g} Hz "
+                         f"({1 / fs:.6g} s per sample)", field="time_s")
     even = (dt > 1.0 / GAP_FACTOR) & (dt < GAP_FACTOR)
     link = static[1:] & static[:-1] & even  # row i+1 continues the stretch of row i
     # runs of rows joined by static, evenly spaced steps; keep the longest static one
@@ -165,7 +171,7 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | str | No
     lengths = np.where(static[starts], stops - starts + 1, 0)
     j = int(np.argmax(lengths))
     best_len, a0, b0 = int(lengths[j]), int(starts[j]), int(stops[j])
-    gaps = int(np.count_nonzero(~even[in_window[1:] & in_window[:-1]]))
+    gaps = int(np.count_nonzero(~even[pair]))
     n_static = int(np.count_nonzero(static))
     n_window = int(np.count_nonzero(in_window))
     if best_len < n_window or gaps:
@@ -173,7 +179,7 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | str | No
         if refs and n_static < n_window:
             parts.append(f"{n_window - n_static} moving rows")
         if gaps:
-            badness = np.where(in_window[1:] & in_window[:-1], np.abs(np.log(np.clip(dt, 1e-12, None))), -1.0)
+            badness = np.where(pair, np.abs(np.log(np.clip(dt, 1e-12, None))), -1.0)
             k = int(np.argmax(badness))
             parts.append(f"{gaps} uneven time step(s) (worst {np.diff(t)[k]:.6g} s at t = {t[k]:.6g} s, nominal "
                          f"{1 / fs:.6g} s)")
@@ -389,14 +395,17 @@ def calibrate(ds: Dataset, *, taus: Sequence[float] | str | None = None, confide
 def _axis_notes(a: str, res: AxisNoise, fs: float) -> list[str]:
     al, tm = res.allan, res.terms
     out: list[str] = []
+    if not np.any(al.adev > 0):
+        return [f"{a}: the output does not change over the static stretch (below one output step?): no noise to analyse"]
     last_share = tm.contributions(al.taus_s[-1:])[0]
     plateau = tm.dominant["bias_instability"] and TERMS[int(np.argmax(last_share))] == "bias_instability"
     if res.bias_instability_tau_s >= al.taus_s[-1] and not plateau:
         out.append(f"{a}: the Allan deviation is still falling at the longest τ ({al.taus_s[-1]:g} s): no flat region, "
                    "the bias instability is an upper bound (record longer)")
     elif not tm.dominant["bias_instability"]:
+        meet = ", where the −½ and +½ lines meet" if tm.dominant["arw"] and tm.dominant["rrw"] else ""
         out.append(f"{a}: no flat region: the bias instability is read at the minimum of the fitted curve "
-                   f"(τ = {res.bias_instability_tau_s:g} s, where the −½ and +½ lines meet), an upper bound")
+                   f"(τ = {res.bias_instability_tau_s:g} s{meet}), an upper bound")
     if not tm.dominant["arw"]:
         out.append(f"{a}: no −½ slope region: the ARW is not resolved by these data")
     if not tm.dominant["rrw"]:

@@ -221,6 +221,7 @@ class GyroNoiseState:
 
     t_last_s: float | None = None
     power_on_last_s: float | None = None
+    power_on_instant_s: float | None = None
     period_s: float | None = None
     b_run_to_run_dps: np.ndarray = field(default_factory=lambda: np.zeros(3))
     gauss_markov_dps: np.ndarray | None = None  # (3, J)
@@ -231,8 +232,8 @@ class GyroModel:
     """Parameters + random generator + noise state. :meth:`evaluate` successive batches of samples
     (in time order) gives the same statistics as one call on their concatenation.
 
-    A power-on is detected when ``power_on_s`` decreases (within a batch or from the previous
-    batch's last sample), and at the first sample ever: it draws a new run-to-run bias, restarts
+    A power-on is detected at the first sample ever and wherever ``power_on_s`` decreases or the
+    power-on instant ``time_s − power_on_s`` moves (within a batch or from the previous batch): it draws a new run-to-run bias, restarts
     the rate random walk, redraws the Gauss-Markov states from their stationary distribution and
     empties the moving-average buffer.
     """
@@ -270,11 +271,17 @@ class GyroModel:
         return self._physical(inputs)[0]
 
     # ---- internals ----------------------------------------------------------------------------
-    def _segments(self, on: np.ndarray) -> list[tuple[int, int, bool]]:
-        """(start, stop, is_power_on) per run in the batch."""
+    def _segments(self, inputs: SensorInputs) -> list[tuple[int, int, bool]]:
+        """(start, stop, is_power_on) per run in the batch. A new run starts where the time since
+        power-on decreases or the power-on instant (time_s − power_on_s) moves."""
+        on = np.asarray(inputs.power_on_s, dtype=float)
+        instant = inputs.time_s - on
+        tol = 1e-6 + 1e-9 * np.abs(instant)
         n = on.shape[0]
-        cuts = list(np.nonzero(np.diff(on) < 0)[0] + 1)
-        first_new = self.state.power_on_last_s is None or on[0] < self.state.power_on_last_s
+        cuts = list(np.nonzero((np.diff(on) < 0) | (np.abs(np.diff(instant)) > tol[1:]))[0] + 1)
+        s = self.state
+        first_new = (s.power_on_last_s is None or on[0] < s.power_on_last_s
+                     or (s.power_on_instant_s is not None and abs(instant[0] - s.power_on_instant_s) > tol[0]))
         bounds = [0, *cuts, n]
         return [(bounds[i], bounds[i + 1], first_new if i == 0 else True) for i in range(len(bounds) - 1)]
 
@@ -289,12 +296,13 @@ class GyroModel:
     def _physical(self, inputs: SensorInputs) -> tuple[np.ndarray, list[tuple[int, int, bool]]]:
         n = inputs.n
         out = deterministic_output_dps(self.p, inputs)
-        segments = self._segments(inputs.power_on_s) if n else []
+        segments = self._segments(inputs) if n else []
         for a, b, new in segments:
             if new:
                 self._power_on()
             out[a:b] += self.state.b_run_to_run_dps + self._noise(inputs.time_s[a:b])
             self.state.power_on_last_s = float(inputs.power_on_s[b - 1])
+            self.state.power_on_instant_s = float(inputs.time_s[b - 1] - inputs.power_on_s[b - 1])
         if self.effects:
             from bench.model import effects as effects_mod  # written separately; imported only when used
 

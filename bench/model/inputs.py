@@ -15,7 +15,8 @@ Conventions (``docs/sensor-models.md``):
 * ``pressure_torr`` defaults to ambient, 760 Torr (NPSAT1 Fig. 36 ambient samples at
   7.5E+2 / 7.6E+2 Torr);
 * ``power_on_s`` is the time since the sensor was powered (s); when it decreases from one sample to
-  the next the sensor was power-cycled (a new run, a new run-to-run bias);
+  the next, or the power-on instant ``time_s − power_on_s`` moves, the sensor was power-cycled (a
+  new run, a new run-to-run bias);
 * ``specific_force_g`` (n, 3) in g, for g-sensitivity terms; zeros when not given;
 * ``table_angle_deg`` (n,) the rate-table / stage angle, for effects periodic in the table angle
   (worm-gear eccentricity, ESTCube-2 section 4.3); None when unknown.

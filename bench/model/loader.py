@@ -468,8 +468,26 @@ def _effects(node: Node, errors: list[InputError]) -> list[dict[str, Any]]:
         for extra in ("source", "description"):
             if extra in plain:
                 entry[extra] = plain[extra]
+        problem = _effect_problem(entry, name)
+        if problem is not None:
+            errors.append(InputError(problem, item.location, name))
+            continue
         out.append(entry)
     return out
+
+
+def _effect_problem(entry: dict[str, Any], where: str) -> str | None:
+    """The effects module's complaint about ``entry`` (unknown effect or parameter, bad value), or
+    None. Skipped when :mod:`bench.model.effects` is not importable."""
+    try:
+        from bench.model import effects as effects_mod
+    except ImportError:
+        return None
+    try:
+        effects_mod.parse_effect(entry, where)
+    except InputError as exc:
+        return exc.message.removeprefix(f"{where}: ")
+    return None
 
 
 def model_names() -> tuple[str, ...]:

@@ -12,6 +12,7 @@ Nothing in a procedure executes code: values are data, parameters are substitute
 
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -185,7 +186,9 @@ def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None,
     inode = exp._subst(doc.interlocks_node, env) if doc.interlocks_node is not None else None
     interlocks = _interlocks(inode, doc.instruments, kinds, errors)
     if not errors:
-        errors += check_step_limits(exp.steps, kinds, config_limits, limits)
+        for site, run in itertools.groupby(exp.steps, key=lambda s: exp.called_from.get(s.index, "")):
+            for e in check_step_limits(list(run), kinds, config_limits, limits):
+                errors.append(InputError(f"{e.message} {site}", e.location, e.field) if site else e)
     if errors:
         raise InputErrors(errors)
     plain_params = {k: n.plain() for k, n in env.items()}
@@ -238,6 +241,9 @@ class _Expander:
         self.sources: dict[str, str] = {}
         self._call_stack: list[Path] = [doc.src.path.resolve()]
         self._too_many = False
+        self._sites: list[Location] = []  # the call steps being expanded, outermost first
+        self.called_from: dict[int, str] = {}
+        """Step index -> ``(called from FILE:LINE:COL)`` of every call it was expanded through."""
 
     def expand(self, nodes: list[Node], env: dict[str, Node], doc: _Doc, prefix: str, context: str, depth: int) -> None:
         for i, node in enumerate(nodes):
@@ -296,6 +302,8 @@ class _Expander:
             self.errors.append(InputError(f"the procedure expands into more than {MAX_STEPS} steps", key_loc))
             return None
         step = Step(len(self.steps), stype, name, params, key_loc, path, context, dict(meta or {}))
+        if self._sites:
+            self.called_from[step.index] = _called_from(self._sites)
         self.steps.append(step)
         return step
 
@@ -492,6 +500,18 @@ class _Expander:
             self.expand(steps, inner, doc, f"{path}.{k + 1}.", _ctx(context, f"{var}={_text(value.plain())}"), depth)
 
     def _block_call(self, body, env, doc, path, context, depth, key_loc) -> None:
+        before = len(self.errors)
+        self._sites.append(key_loc)
+        try:
+            self._call(body, env, doc, path, context, depth, key_loc)
+        finally:
+            self._sites.pop()
+        # a problem found in the called file may come from this call (its args): name the call too
+        self.errors[before:] = [e if e.location is None or str(e.location.file) == str(doc.src.path)
+                                else InputError(f"{e.message} {_called_from([key_loc])}", e.location, e.field)
+                                for e in self.errors[before:]]
+
+    def _call(self, body, env, doc, path, context, depth, key_loc) -> None:
         f = self._block_fields(body, "call", path, env)
         if f is None:
             return
@@ -681,6 +701,10 @@ def _resolve(doc: _Doc, rel: str) -> Path | None:
         return (doc.src.path.parent / rel).resolve()
     except (OSError, ValueError):  # ValueError: embedded NUL byte
         return None
+
+
+def _called_from(sites: list[Location]) -> str:
+    return " ".join(f"(called from {s})" for s in reversed(sites))
 
 
 def _ctx(context: str, more: str) -> str:

@@ -21,6 +21,7 @@ import dataclasses
 import math
 import struct
 import threading
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -83,7 +84,11 @@ def board_model_from_file(path: str | Path, rng: np.random.Generator) -> SimpleI
     located :class:`InputError` for a bad file or a model that cannot drive the board."""
     from bench.model.loader import load_sensor_model
 
-    spec = load_sensor_model(path)
+    return board_model_from_spec(load_sensor_model(path), rng)
+
+
+def board_model_from_spec(spec: Any, rng: np.random.Generator) -> SimpleImuModel | GyroBoardModel:
+    """The board's sensor model from a loaded :class:`bench.model.loader.SensorModelSpec`."""
     if spec.imu is not None:
         return SimpleImuModel(spec.imu, rng)
     if spec.gyro is not None:

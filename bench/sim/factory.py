@@ -91,7 +91,12 @@ def _serial_only(name: str, device, seed: int = 0) -> SimInstrument:
 
 def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
     rng = np.random.default_rng(inst.sim.seed)
-    model = SimpleImuModel(inst.sim.model, rng)
+    if inst.sim.sensor_spec is not None:
+        from bench.sim.acs_board import board_model_from_spec
+
+        model = board_model_from_spec(inst.sim.sensor_spec, rng)
+    else:
+        model = SimpleImuModel(inst.sim.model, rng)
     dev = AcsBoardSim(clock, world, model, AcsBoardIdentity(serial=inst.sim.serial), baudrate=inst.baudrate,
                       bit_fail_mask=inst.sim.bit_fail_mask)
     if inst.sim.transport != "can":

@@ -32,6 +32,8 @@ class CVFit:
     sse_full: float
     beta_folds: np.ndarray
     """(K, m) coefficients of each fold's training fit."""
+    sum_block: np.ndarray
+    """(B,) held-out residual summed over each block (column 0 of the design must be the constant 1)."""
 
     @property
     def sse(self) -> float:
@@ -61,13 +63,14 @@ def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = 
     v = np.concatenate([beta_k, -np.ones((K, 1))], axis=1)
     vb = v[fold]
     sse_block = np.einsum("bi,bij,bj->b", vb, A, vb)
+    sum_block = -np.einsum("bj,bj->b", A[:, 0, :], vb) if m else np.zeros(A.shape[0])
     sse_train = np.einsum("ki,kij,kj->k", v, train, v)
     vf = np.concatenate([beta, [-1.0]])
     sse_full = float(vf @ tot @ vf)
     df = float(m)
     if need_df and P is not None:
         df = float(np.trace(_solve(Gf[None], tot[None, :m, :m])[0]))
-    return CVFit(np.maximum(sse_block, 0.0), np.maximum(sse_train, 0.0), beta, df, max(sse_full, 0.0), beta_k)
+    return CVFit(np.maximum(sse_block, 0.0), np.maximum(sse_train, 0.0), beta, df, max(sse_full, 0.0), beta_k, sum_block)
 
 
 def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:

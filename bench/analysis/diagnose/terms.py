@@ -32,10 +32,12 @@ class Built:
     cols: dict[str, np.ndarray] = field(default_factory=dict)
     offsets: dict[str, np.ndarray] = field(default_factory=dict)
     penalty: dict[str, np.ndarray] = field(default_factory=dict)
+    relag: dict[str, float] = field(default_factory=dict)
+    """axis → τ (s): the baseline's temperature cubic is evaluated at temp_c lagged by τ instead."""
 
     @property
     def axes(self) -> list[str]:
-        return sorted(set(self.cols) | set(self.offsets), key=AXES.index)
+        return sorted(set(self.cols) | set(self.offsets) | set(self.relag), key=AXES.index)
 
 
 @dataclass
@@ -105,6 +107,9 @@ def _temp_range(p: Prepared) -> float:
 
 # ---- the vocabulary ----------------------------------------------------------------------------
 class ThermalLag(Candidate):
+    """The die temperature lags ``temp_c``: the baseline cubic is evaluated at the lagged
+    temperature (one parameter, τ); its coefficients become the effect's ``tempco_dps``."""
+
     name = "thermal_lag"
     nonlinear = ("tau_s",)
     refine = (("tau_s", True),)
@@ -123,18 +128,21 @@ class ThermalLag(Candidate):
         return [{"tau_s": float(v)} for v in np.geomspace(lo, max(hi, 2 * lo), 16)]
 
     def build(self, p, axis, nl, ctx):
-        def cols():
-            u = p.temp - T_REF_C
-            ul = fx.lagged(p.t, p.temp, nl["tau_s"]) - T_REF_C
-            return np.column_stack([ul - u, ul ** 2 - u ** 2, ul ** 3 - u ** 3])
-        return Built(cols={axis: _cached(p, ("lag", round(nl["tau_s"], 6)), cols)})
+        return Built(relag={axis: float(nl["tau_s"])})
 
     def params(self, p, axis, nl, coef):
         return {"tau_s": float(nl["tau_s"]), "tempco_dps": [float(c) for c in coef[axis]]}
 
     def describe(self, params):
         c = params["tempco_dps"][0]
-        return f"die temperature lags temp_c by tau = {params['tau_s']:.0f} s (slope {c:+.2g} deg/s/°C at 25 °C)"
+        return f"die temperature lags temp_c by tau = {params['tau_s']:.0f} s (bias slope {c:+.2g} deg/s/°C at 25 °C)"
+
+
+def lagged_temp(p: Prepared, tau_s: float | None) -> np.ndarray:
+    """temp_c, or temp_c through the first-order lag τ (cached), °C."""
+    if not tau_s:
+        return p.temp
+    return _cached(p, ("lag", round(float(tau_s), 6)), lambda: fx.lagged(p.t, p.temp, float(tau_s)))
 
 
 class WarmupTransient(Candidate):
@@ -336,7 +344,8 @@ class ScaleFactorTempco(Candidate):
 class Hysteresis(Candidate):
     name = "hysteresis"
     nonlinear = ("deadband_c",)
-    DEADBANDS = (0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0)
+    refine = (("deadband_c", True),)
+    DEADBANDS = tuple(float(v) for v in np.geomspace(0.1, 3.0, 16))
 
     def missing(self, p):
         return [] if p.temp is not None else ["temp_c"]
@@ -351,7 +360,7 @@ class Hysteresis(Candidate):
         return [{"deadband_c": d} for d in self.DEADBANDS if d < _temp_range(p) / 4]
 
     def build(self, p, axis, nl, ctx):
-        col = _cached(p, ("hyst", nl["deadband_c"]), lambda: fx.hysteresis_state(p.temp, nl["deadband_c"])[:, None])
+        col = _cached(p, ("hyst", round(nl["deadband_c"], 9)), lambda: fx.hysteresis_state(p.temp, nl["deadband_c"])[:, None])
         return Built(cols={axis: col})
 
     def params(self, p, axis, nl, coef):
@@ -378,7 +387,8 @@ class TimeSkew(Candidate):
 
     def grid(self, p, axis, ctx):
         span = max(1.0, 2.0 / p.fs)
-        return [{"delay_s": float(d)} for d in np.linspace(-span, span, 41) if d != 0.0]
+        mags = np.geomspace(min(2e-3, 0.02 / p.fs), span, 28)
+        return [{"delay_s": float(d)} for d in np.concatenate([-mags[::-1], mags])]
 
     def build(self, p, axis, nl, ctx):
         d = nl["delay_s"]
@@ -402,7 +412,7 @@ class RateRandomWalk(Candidate):
     nonlinear = ("k_dps_per_sqrt_s",)
     select_by_cv = True
     KNOTS = 100
-    K_GRID = tuple(float(v) for v in np.geomspace(3e-6, 3e-3, 13))
+    K_GRID = tuple(float(v) for v in np.geomspace(3e-6, 1e-3, 11))
 
     def grid(self, p, axis, ctx):
         return [{"k_dps_per_sqrt_s": k} for k in self.K_GRID]

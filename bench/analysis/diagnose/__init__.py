@@ -1,0 +1,215 @@
+"""``bench diagnose``: show what the sensor model gets wrong, name the cause, extend the model,
+measure the gain (``docs/diagnose.md``).
+
+Public API::
+
+    result = diagnose(ds, model_path=None, seed=0)   # ds: bench.analysis.dataset.Dataset
+    result.json                # {"axes": ..., "findings": [...], "skipped": [...]}
+    result.summary_lines()     # human summary
+    result.extended_model()    # YAML-ready sensor model with the findings as effects
+    write_report(result, ds, "out.html")
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.analysis.dataset import Dataset
+from bench.analysis.diagnose.data import Prepared, prepare
+from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
+                                            build_state, has_temp_cubic, search)
+from bench.analysis.diagnose.result import DiagnoseResult, Finding
+from bench.analysis.diagnose.terms import AXES, CANDIDATES, Built, Context
+from bench.errors import InputError
+from bench.model import effects as fx
+
+__all__ = ["diagnose", "DiagnoseResult", "Finding", "write_report", "IC_MIN", "T_MIN", "GAIN_MIN"]
+
+
+def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0) -> DiagnoseResult:
+    """Fit the baseline sensor model (plus the model file's known terms) to ``ds``, search the
+    vocabulary for missing effects by blocked cross-validation, and return the findings.
+
+    ``model_path``: a sensor-model YAML (``configs/sensors/*.yaml`` or a previous ``-o`` output);
+    its nonzero warm-up, pressure, g-sensitivity and rate-random-walk terms and its ``effects:``
+    join the baseline (nonlinear parameters as given, amplitudes refitted) and are not searched
+    again. ``seed`` is accepted for interface stability; the method is deterministic.
+    """
+    del seed  # deterministic: blocked folds, grids, no random draws
+    p = prepare(ds)
+    raw, spec_effects, model_terms = None, [], []
+    if model_path is not None:
+        raw, spec_effects, model_terms = _load_model(model_path)
+    base_terms = [Term("baseline", a, {}, baseline_built(p, a)) for a in p.axes]
+    ctx = build_state(p, base_terms).context()
+    fixed = []
+    for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
+        fixed += _fixed_terms(p, name, axis, nl, ctx)
+    found = search(p, base_terms + fixed)
+    return _result(p, ds, found, model_path, raw, fixed)
+
+
+# ---- model file -----------------------------------------------------------------------------------
+def _load_model(path: str) -> tuple[dict[str, Any], list[fx.Effect], list[tuple[str, str, dict[str, Any]]]]:
+    """Raw YAML mapping, parsed effects, and the base model's own terms mapped to the vocabulary."""
+    import yaml
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: sensor model file not found")
+    try:
+        from bench.model.loader import load_sensor_model
+    except ImportError:  # pragma: no cover - the model package ships with bench
+        load_sensor_model = None
+    spec = load_sensor_model(p) if load_sensor_model else None
+    try:
+        raw = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"{p}: cannot read the sensor model: {exc}") from None
+    if not isinstance(raw, dict):
+        raise InputError(f"{p}: a sensor model is a mapping (schema, model, ...)")
+    effects = fx.parse_effects(spec.effects if spec is not None else raw.get("effects"))
+    terms: list[tuple[str, str, dict[str, Any]]] = []
+    g = getattr(spec, "gyro", None)
+    imu = getattr(spec, "imu", None)
+    for k, a in enumerate(AXES):
+        if g is not None:
+            if g.warmup_amplitude_dps[k] != 0:
+                terms.append(("warmup_transient", a, {"tau_s": float(g.warmup_tau_s[k])}))
+            if g.pressure_shift_vacuum_dps[k] != 0:
+                terms.append(("pressure_bias", a, {"p0_torr": float(g.pressure_transition_torr)}))
+            if any(v != 0 for v in g.g_sensitivity_dps_per_g[k]):
+                terms.append(("g_sensitivity", a, {}))
+            if g.rrw_deg_h_rth[k] != 0:
+                terms.append(("rate_random_walk", a, {"k_dps_per_sqrt_s": g.rrw_deg_h_rth[k] / (3600.0 * 60.0)}))
+        if imu is not None and imu.warmup_amplitude_dps[k] != 0:
+            terms.append(("warmup_transient", a, {"tau_s": float(imu.warmup_settling_s[k]) / 3.0}))
+    return raw, effects, terms
+
+
+def _fixed_terms(p: Prepared, name: str, axis: str, src: Any, ctx: Context) -> list[Term]:
+    """Terms (one per axis) for a known effect: nonlinear parameters fixed, amplitudes free."""
+    cand = CANDIDATES[name]
+    if cand.missing(p):
+        return []
+    out = []
+    if isinstance(src, fx.Effect):
+        axes = ["all"] if cand.shared else ([a for a in p.axes] if src.axis == "all" else [src.axis])
+    else:
+        axes = [axis]
+    for a in axes:
+        if a != "all" and a not in p.axes:
+            continue
+        if isinstance(src, fx.Effect):
+            k = AXES.index(a) if a != "all" else 0
+            prm = src.axis_params(k)
+            nl = {f: getattr(prm, f) for f in ("tau_s", "p0_torr", "slope", "harmonic", "deadband_c", "delay_s",
+                                               "k_dps_per_sqrt_s") if hasattr(prm, f)}
+        else:
+            nl = dict(src)
+        if name == "earth_rate":
+            prm = src.axis_params(0) if isinstance(src, fx.Effect) else fx.EarthRateParams()
+            e = fx.earth_rate_sensor(p.accel, p.angle, prm.latitude_deg, prm.table_axis) * prm.scale
+            built = Built(offsets={b: e[:, AXES.index(b)] for b in p.axes})
+        elif name == "time_skew" and isinstance(src, fx.Effect) and src.axis != "all":
+            built = cand.build(p, "all", nl, ctx)
+            built = Built(offsets={src.axis: built.offsets[src.axis]} if src.axis in built.offsets else {})
+        else:
+            if cand.candidate_axes(p) and a != "all" and a not in cand.candidate_axes(p) and name in (
+                    "gear_eccentricity", "scale_factor_asymmetry", "scale_factor_tempco"):
+                continue
+            built = cand.build(p, a, nl, ctx)
+        out.append(Term(name, "all" if cand.shared else a, nl, built, fixed=True))
+    return out
+
+
+# ---- result -------------------------------------------------------------------------------------
+def _noise_floor(r: np.ndarray) -> float:
+    """White-noise RMS from successive differences (robust: 1.4826·MAD/√2), deg/s."""
+    d = np.diff(r)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2))
+
+
+def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: dict[str, Any] | None,
+            fixed: list[Term]) -> DiagnoseResult:
+    skipped, reasons = [], {}
+    for cand in CANDIDATES.values():
+        miss = cand.missing(p)
+        if miss:
+            skipped.append(cand.name)
+            reasons[cand.name] = miss
+    axes = {a: {"rms_baseline": math.sqrt(s.baseline.axes[a].mse), "rms_extended": math.sqrt(s.final.axes[a].mse)}
+            for a in p.axes}
+    findings = []
+    for term, before, after in s.sequence:
+        cand = CANDIDATES[term.effect]
+        touched = term.built.axes
+        coef = {a: after.axes[a].coef(len(before.terms)) for a in touched}
+        if term.effect == "thermal_lag":
+            coef = {a: _temp_coefs(after, a) for a in touched}
+        params = cand.params(p, term.axis, term.nl, coef)
+        ev = dict(term.evidence)
+        if term.effect == "earth_rate":
+            num = sum(float(np.dot(before.axes[a].resid(), term.built.offsets[a])) for a in touched)
+            den = sum(float(np.dot(term.built.offsets[a], term.built.offsets[a])) for a in touched)
+            ev["fitted_scale"] = num / den if den > 0 else float("nan")
+        findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
+    floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
+    return DiagnoseResult(
+        source=ds.source, axes=axes, findings=findings, skipped=skipped, skipped_reasons=reasons,
+        not_excited=s.not_excited, noise_floor=floors, rows=p.n, sample_rate_hz=p.fs, model_path=model_path,
+        base_model=raw, fitted_baseline=_fitted_baseline(p, s), rounds=s.rounds, dropped=s.dropped,
+        fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], _internal=(p, s))
+
+
+def _temp_coefs(state: Any, a: str) -> np.ndarray:
+    """Cubic temperature coefficients of axis ``a``'s baseline in powers of (T − 25 °C)."""
+    idx = next(i for i, t in enumerate(state.terms) if t.effect == "baseline" and t.axis == a)
+    c = state.axes[a].coef(idx)
+    return np.array([c[k] / T_REF_SCALE_C ** k for k in (1, 2, 3)]) if c.size >= 4 else np.zeros(3)
+
+
+def _fitted_baseline(p: Prepared, s: Search) -> dict[str, Any]:
+    """``npsat1_gyro`` keys of the fitted baseline: b_cons 0, in_run_poly [B, m1, m2, m3] in °C,
+    misalignment_pct (M − I in %), arw_deg_rth from the extended model's held-out RMS."""
+    poly, mis, arw = [], [], []
+    for a in AXES:
+        if a not in p.axes:
+            poly.append([0.0, 0.0, 0.0, 0.0])
+            mis.append([0.0, 0.0, 0.0])
+            arw.append(0.0)
+            continue
+        st = s.final.axes[a]
+        idx = next(i for i, t in enumerate(s.final.terms) if t.effect == "baseline" and t.axis == a)
+        c = st.coef(idx)
+        cu = [c[0]]
+        j = 1
+        if has_temp_cubic(p):
+            cu += list(c[1:4])
+            j = 4
+        u = np.polynomial.Polynomial([-25.0 / T_REF_SCALE_C, 1.0 / T_REF_SCALE_C])
+        pt = np.polynomial.Polynomial(cu)(u).coef
+        coeffs = [float(v) for v in np.concatenate([pt, np.zeros(4)])[:4]]
+        poly.append(coeffs)
+        row = [0.0, 0.0, 0.0]
+        if p.ref is not None:
+            for k in range(3):
+                r = p.ref[:, k]
+                if np.sqrt(np.mean(r * r)) > 1e-6:
+                    row[k] = float(c[j]) * 100.0
+                    j += 1
+        mis.append(row)
+        arw.append(float(math.sqrt(st.mse) * 60.0 / math.sqrt(p.fs)))
+    return {"b_cons_dps": [0.0, 0.0, 0.0], "in_run_poly_variable": "temp_c", "in_run_poly": poly,
+            "misalignment_pct": mis, "arw_deg_rth": arw}
+
+
+def write_report(result: DiagnoseResult, ds: Dataset, path: str | Path) -> Path:
+    """Write the HTML report (residuals before/after, spectra, evidence per finding) to ``path``."""
+    from bench.analysis.diagnose.report import write_report as _write
+
+    return _write(result, ds, path)

@@ -1,0 +1,516 @@
+"""The discrepancy engine: baseline fit, candidate fits, blocked-CV selection with an information
+criterion, backward elimination, final held-out figures.
+
+Selection rule (``docs/diagnose.md``): a candidate term is *acceptable* when, against the current
+model, on held-out data (nested blocked CV: nonlinear parameters chosen on each fold's training
+rows only),
+
+* the cross-validated information criterion, computed with the effective number of independent
+  rows, improves: ΔIC = Σ_axes (n/φ)·ln(MSE_new/MSE_old) + Δk·ln(N/φ) < −:data:`IC_MIN`. Δk =
+  added linear + nonlinear parameters (for the penalised random walk, whose flexibility is set by
+  held-out error, its one hyperparameter), N = rows × axes involved, φ ≥ 1 the variance inflation of the candidate model's held-out
+  residual summed over blocks (1 for white noise; large when the candidate leaves correlated
+  structure, so a term that only partly explains a structure earns little evidence);
+* it is material: the held-out RMS drops by at least :data:`GAIN_MIN` (relative).
+
+The t statistic of the per-block improvements is reported as evidence but not required: effects
+confined to a part of the session (warm-up, rate ramps) improve few blocks.
+
+Forward: add the acceptable candidate with the most negative ΔIC, refine its continuous
+nonlinear parameters on all rows, repeat until none is acceptable. Backward: drop any term that is
+no longer acceptable given all the others (nonlinear parameters held), repeat until stable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from bench.analysis.diagnose.cv import CVFit, augment, cv_fit
+from bench.analysis.diagnose.data import Blocks, Prepared
+from bench.analysis.diagnose.terms import AXES, CANDIDATES, Built, Candidate, Context, lagged_temp
+
+IC_MIN = 10.0
+"""Required drop of the cross-validated information criterion (log-likelihood units; 10 is
+"very strong" evidence on the Kass-Raftery scale)."""
+T_MIN = 0.0
+"""Not used by the rule (kept for reporting): see the module docstring."""
+GAIN_MIN = 0.01
+"""Required relative drop of the held-out RMS (1 %): below it the baseline already explains the data."""
+MAX_TERMS = 8
+"""Most terms added by the forward search."""
+T_REF_SCALE_C = 30.0
+
+
+@dataclass
+class Term:
+    """A model term: the baseline of an axis, a term from the model file (``fixed``) or a finding."""
+
+    effect: str
+    axis: str
+    nl: dict[str, Any]
+    built: Built
+    fixed: bool = False
+    evidence: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return (self.effect, self.axis)
+
+
+@dataclass
+class AxisState:
+    X: np.ndarray
+    scale: np.ndarray
+    P: np.ndarray | None
+    y: np.ndarray
+    A: np.ndarray
+    spans: list[tuple[int, int, int]]
+    fit: CVFit
+
+    @property
+    def n(self) -> int:
+        return int(self.y.shape[0])
+
+    @property
+    def mse(self) -> float:
+        return self.fit.sse / self.n
+
+    def resid(self) -> np.ndarray:
+        """Full-data residual (deg/s)."""
+        return self.y - self.X @ self.fit.beta
+
+    def heldout_resid(self, blocks: Blocks) -> np.ndarray:
+        """Each row's residual from the fold fit that did not see it (deg/s)."""
+        fold = blocks.row_fold()
+        pred = np.empty(self.n)
+        for k in range(blocks.folds):
+            sel = fold == k
+            pred[sel] = self.X[sel] @ self.fit.beta_folds[k]
+        return self.y - pred
+
+    def coef(self, term_index: int) -> np.ndarray:
+        """Raw (physical) coefficients of a term's columns."""
+        for i, a, b in self.spans:
+            if i == term_index:
+                return self.fit.beta[a:b] / self.scale[a:b]
+        return np.zeros(0)
+
+
+@dataclass
+class State:
+    terms: list[Term]
+    axes: dict[str, AxisState]
+
+    def context(self) -> Context:
+        return Context(resid={a: s.resid() for a, s in self.axes.items()},
+                       sigma2={a: max(s.mse, 1e-30) for a, s in self.axes.items()})
+
+    def rms(self, axes: list[str]) -> float:
+        return math.sqrt(sum(self.axes[a].fit.sse for a in axes) / sum(self.axes[a].n for a in axes))
+
+
+def _col_scale(Z: np.ndarray) -> np.ndarray:
+    s = np.sqrt(np.mean(Z * Z, axis=0))
+    return np.where(s > 0, s, 1.0)
+
+
+def _blockdiag(P: np.ndarray | None, m: int, Pz: np.ndarray | None, q: int) -> np.ndarray | None:
+    if P is None and Pz is None:
+        return None
+    out = np.zeros((m + q, m + q))
+    if P is not None:
+        out[:m, :m] = P
+    if Pz is not None:
+        out[m:, m:] = Pz
+    return out
+
+
+def has_temp_cubic(p: Prepared) -> bool:
+    return p.temp is not None and float(np.ptp(p.temp)) > 0.5
+
+
+def baseline_built(p: Prepared, axis: str, tau_s: float | None = None) -> Built:
+    """Constant (always the first column), cubic in (T − 25)/30 °C (T lagged by ``tau_s`` when a
+    thermal lag is in the model), and the reference rates (scale factor/misalignment)."""
+    cols = [np.ones(p.n)]
+    if has_temp_cubic(p):
+        u = (lagged_temp(p, tau_s) - 25.0) / T_REF_SCALE_C
+        cols += [u, u * u, u ** 3]
+    if p.ref is not None:
+        for k in range(3):
+            r = p.ref[:, k]
+            if np.sqrt(np.mean(r * r)) > 1e-6:
+                cols.append(r)
+    return Built(cols={axis: np.column_stack(cols)})
+
+
+def response(p: Prepared, axis: str) -> np.ndarray:
+    """gyro − reference rate (deg/s): what the error model has to explain."""
+    return p.gyro[axis] - p.ref_axis(axis)
+
+
+def axis_state(p: Prepared, a: str, terms: list[Term]) -> AxisState:
+    """Fit ``terms`` on axis ``a`` from scratch."""
+    tau = None
+    for t in terms:
+        if a in t.built.relag:
+            tau = t.built.relag[a]
+    cols, pens, spans = [], [], []
+    y = response(p, a)
+    m = 0
+    for i, t in enumerate(terms):
+        built = t.built
+        if t.effect == "baseline" and t.axis == a and tau:
+            built = baseline_built(p, a, tau)
+        if a in built.offsets:
+            y = y - built.offsets[a]
+        if a in built.cols:
+            z = built.cols[a]
+            cols.append(z)
+            pens.append((m, built.penalty.get(a)))
+            spans.append((i, m, m + z.shape[1]))
+            m += z.shape[1]
+    X = np.column_stack(cols)
+    scale = _col_scale(X)
+    X = X / scale
+    P = None
+    if any(pz is not None for _, pz in pens):
+        P = np.zeros((m, m))
+        for start, pz in pens:
+            if pz is not None:
+                q = pz.shape[0]
+                sc = scale[start:start + q]
+                P[start:start + q, start:start + q] = pz / np.outer(sc, sc)
+    A = p.blocks.gram(np.column_stack([X, y]))
+    return AxisState(X, scale, P, y, A, spans, cv_fit(A, P, p.blocks))
+
+
+def build_state(p: Prepared, terms: list[Term]) -> State:
+    """Fit ``terms`` from scratch on every axis."""
+    return State(list(terms), {a: axis_state(p, a, terms) for a in p.axes})
+
+
+def add_term(p: Prepared, state: State, term: Term) -> State:
+    """``state`` with ``term`` appended (only the axes it touches are refitted)."""
+    idx = len(state.terms)
+    terms = state.terms + [term]
+    axes = dict(state.axes)
+    for a in term.built.axes:
+        if a in term.built.relag:
+            axes[a] = axis_state(p, a, terms)
+            continue
+        st = state.axes[a]
+        Z = term.built.cols.get(a)
+        o = term.built.offsets.get(a)
+        y_new = st.y - o if o is not None else st.y
+        m = st.X.shape[1]
+        if Z is not None:
+            s = _col_scale(Z)
+            Zs = Z / s
+            pz = term.built.penalty.get(a)
+            Pz = None if pz is None else pz / np.outer(s, s)
+            X = np.column_stack([st.X, Zs])
+            scale = np.concatenate([st.scale, s])
+            P = _blockdiag(st.P, m, Pz, Z.shape[1])
+            spans = st.spans + [(idx, m, m + Z.shape[1])]
+        else:
+            Zs, X, scale, P, spans = None, st.X, st.scale, st.P, list(st.spans)
+        A = augment(st.A, st.X, st.y, p.blocks, Zs, None if o is None else y_new)
+        axes[a] = AxisState(X, scale, P, y_new, A, spans, cv_fit(A, P, p.blocks))
+    return State(terms, axes)
+
+
+# ---- candidate evaluation -----------------------------------------------------------------------
+@dataclass
+class Evaluation:
+    """A candidate against the current model: held-out errors, criterion, chosen parameters."""
+
+    cand: Candidate
+    axis: str
+    axes: list[str]
+    hold: dict[str, np.ndarray]
+    nl_full: dict[str, Any]
+    d_ic: float
+    t: float
+    gain: float
+    rms_before: float
+    rms_after: float
+    df: float
+    phi: float = 1.0
+
+    @property
+    def acceptable(self) -> bool:
+        return self.d_ic < -IC_MIN and self.gain >= GAIN_MIN
+
+    def row(self) -> dict[str, Any]:
+        return {"effect": self.cand.name, "axis": self.axis, "d_ic": self.d_ic, "t": self.t, "gain": self.gain,
+                "rms_before": self.rms_before, "rms_after": self.rms_after, "df": self.df, "phi": self.phi,
+                "acceptable": self.acceptable, "nl": dict(self.nl_full)}
+
+
+def _fit_candidate(p: Prepared, state: State, built: Built) -> dict[str, CVFit]:
+    fits = {}
+    for a in built.axes:
+        if a in built.relag:
+            fits[a] = axis_state(p, a, state.terms + [Term("thermal_lag", a, {}, built)]).fit
+            continue
+        st = state.axes[a]
+        Z = built.cols.get(a)
+        o = built.offsets.get(a)
+        Zs, Pz = None, None
+        if Z is not None:
+            s = _col_scale(Z)
+            Zs = Z / s
+            pz = built.penalty.get(a)
+            Pz = None if pz is None else pz / np.outer(s, s)
+        A = augment(st.A, st.X, st.y, p.blocks, Zs, None if o is None else st.y - o)
+        P = _blockdiag(st.P, st.X.shape[1], Pz, 0 if Z is None else Z.shape[1])
+        fits[a] = cv_fit(A, P, p.blocks, need_df=Pz is not None)
+    return fits
+
+
+def evaluate(p: Prepared, state: State, cand: Candidate, axis: str, ctx: Context,
+             grid: list[dict[str, Any]] | None = None) -> Evaluation | None:
+    """Score ``cand`` on ``axis`` (nested blocked CV over its grid, or the given ``grid``)."""
+    grid = cand.grid(p, axis, ctx) if grid is None else grid
+    if not grid:
+        return None
+    runs = []
+    for nl in grid:
+        built = cand.build(p, axis, nl, ctx)
+        if not built.axes:
+            continue
+        runs.append((nl, built, _fit_candidate(p, state, built)))
+    if not runs:
+        return None
+    axes = runs[0][1].axes
+    w = {a: 1.0 / max(state.axes[a].mse, 1e-30) for a in axes}
+    if cand.refine and len(grid) > 1:
+        # continuous parameters: refine the whole-data optimum between its grid neighbours and
+        # offer it to every fold next to the grid values
+        full = [sum(w[a] * f[a].sse_full for a in axes) for _, _, f in runs]
+        nl_best = runs[int(np.argmin(full))][0]
+        nl_ref = refine(p, state, cand, axis, nl_best, ctx, grid)
+        if nl_ref != nl_best:
+            built = cand.build(p, axis, nl_ref, ctx)
+            runs.append((nl_ref, built, _fit_candidate(p, state, built)))
+    B = p.blocks.count
+    fold = p.blocks.fold_of
+    train = np.array([[sum(w[a] * f[a].sse_train[k] for a in axes) for k in range(p.blocks.folds)] for _, _, f in runs])
+    held = np.array([[f[a].sse_block for a in axes] for _, _, f in runs])  # (G, axes, B)
+    if cand.select_by_cv:
+        g = int(np.argmin(np.einsum("gab,a->g", held, np.array([w[a] for a in axes]))))
+        pick = np.full(B, g)
+        g_full = g
+    else:
+        best_k = np.argmin(train, axis=0)  # per fold
+        pick = best_k[fold]
+        full = np.array([sum(w[a] * f[a].sse_full for a in axes) for _, _, f in runs])
+        g_full = int(np.argmin(full))
+    hold = {a: held[pick, j, np.arange(B)] for j, a in enumerate(axes)}
+    sums = np.array([[f[a].sum_block for a in axes] for _, _, f in runs])
+    hsum = {a: sums[pick, j, np.arange(B)] for j, a in enumerate(axes)}
+    phi = inflation(hold, hsum, w)
+    n = p.n
+    loglik = 0.0
+    for a in axes:
+        old, new = state.axes[a].fit.sse, float(hold[a].sum())
+        loglik += n * math.log(max(new, 1e-300) / max(old, 1e-300))
+    nl_count = len(cand.nonlinear) if len(grid) > 1 else 0
+    if cand.select_by_cv:
+        # a penalised smoother whose smoothness is chosen by held-out error: cross-validation already
+        # charges its flexibility, the criterion counts the chosen hyperparameter
+        df = float(len(cand.nonlinear))
+    else:
+        built0 = runs[0][1]
+        q = sum(built0.cols[a].shape[1] for a in built0.cols)
+        df = q + nl_count + (1 if not built0.cols and not built0.relag else 0)
+    df = max(df, 1.0)
+    d_ic = loglik / phi + df * math.log(n * len(axes) / phi)
+    d = sum((state.axes[a].fit.sse_block - hold[a]) * w[a] for a in axes)
+    sd = float(np.std(d, ddof=1))
+    t = float(np.mean(d) / (sd / math.sqrt(B))) if sd > 0 else 0.0
+    before = state.rms(axes)
+    after = math.sqrt(sum(float(hold[a].sum()) for a in axes) / (n * len(axes)))
+    return Evaluation(cand, axis, axes, hold, dict(runs[g_full][0]), d_ic, t, 1.0 - after / before, before, after, df, phi)
+
+
+INFLATION_SCALES = (1, 2, 4, 8)
+MIN_GROUPS = 30
+
+
+def inflation(hold: dict[str, np.ndarray], sums: dict[str, np.ndarray], w: dict[str, float]) -> float:
+    """Variance inflation φ ≥ 1 of a held-out residual: (Σ over groups of (Σ residual)²) /
+    (Σ squared residual), for groups of 1, 2, 4, 8 consecutive blocks (at least 30 groups), the
+    largest. 1 for white noise; ≈ 1 + 2·Σρ_k for correlated residual."""
+    best = 1.0
+    for scale in INFLATION_SCALES:
+        num = den = 0.0
+        groups = 0
+        for a, s in sums.items():
+            g = s.shape[0] // scale
+            if g < MIN_GROUPS:
+                continue
+            grouped = s[: g * scale].reshape(g, scale).sum(axis=1)
+            num += w[a] * float(np.sum(grouped ** 2))
+            den += w[a] * float(np.sum(hold[a][: g * scale]))
+            groups = g
+        if groups and den > 0:
+            best = max(best, num / den)
+    return best
+
+
+def _full_sse(p: Prepared, state: State, built: Built, w: dict[str, float]) -> float:
+    """Whole-data weighted SSE of ``state`` + ``built`` (for refining nonlinear parameters)."""
+    one = Blocks(p.n, p.n, 1)
+    total = 0.0
+    for a in built.axes:
+        if a in built.relag:
+            total += w[a] * axis_state(p, a, state.terms + [Term("thermal_lag", a, {}, built)]).fit.sse_full
+            continue
+        st = state.axes[a]
+        Z = built.cols.get(a)
+        o = built.offsets.get(a)
+        Zs, Pz = None, None
+        if Z is not None:
+            s = _col_scale(Z)
+            Zs = Z / s
+            pz = built.penalty.get(a)
+            Pz = None if pz is None else pz / np.outer(s, s)
+        A1 = st.A.sum(axis=0, keepdims=True)
+        A = augment(A1, st.X, st.y, one, Zs, None if o is None else st.y - o)[0]
+        m = A.shape[0] - 1
+        G = A[:m, :m].copy()
+        P = _blockdiag(st.P, st.X.shape[1], Pz, 0 if Z is None else Z.shape[1])
+        if P is not None:
+            G += P
+        G[np.arange(m), np.arange(m)] += 1e-10 * max(float(np.max(np.diag(G))), 1e-30)
+        beta = np.linalg.solve(G, A[:m, m]) if m else np.zeros(0)
+        v = np.concatenate([beta, [-1.0]])
+        total += w[a] * float(v @ A @ v)
+    return total
+
+
+def refine(p: Prepared, state: State, cand: Candidate, axis: str, nl: dict[str, Any], ctx: Context,
+           grid: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Continuous nonlinear parameters refined on all rows around the grid optimum (bounded scalar
+    minimisation of the profiled SSE, one parameter at a time, within one grid step)."""
+    if not cand.refine:
+        return nl
+    grid = cand.grid(p, axis, ctx) if grid is None else grid
+    nl = dict(nl)
+    for name, log in cand.refine:
+        vals = sorted({g[name] for g in grid if name in g})
+        if len(vals) < 2 or name not in nl:
+            continue
+        i = vals.index(nl[name]) if nl[name] in vals else int(np.argmin([abs(v - nl[name]) for v in vals]))
+        lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+        built0 = cand.build(p, axis, nl, ctx)
+        w = {a: 1.0 / max(state.axes[a].mse, 1e-30) for a in built0.axes}
+
+        def f(x: float) -> float:
+            trial = dict(nl)
+            trial[name] = float(math.exp(x) if log else x)
+            return _full_sse(p, state, cand.build(p, axis, trial, ctx), w)
+
+        a, b = (math.log(lo), math.log(hi)) if log else (lo, hi)
+        f0 = f(math.log(nl[name]) if log else nl[name])
+        res = minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-3 * (b - a)})
+        if res.fun < f0:
+            nl[name] = float(math.exp(res.x) if log else res.x)
+    return nl
+
+
+# ---- the search ----------------------------------------------------------------------------------
+@dataclass
+class Search:
+    """Outcome of :func:`search`."""
+
+    baseline: State
+    final: State
+    sequence: list[tuple[Term, State, State]]
+    """(finding, state before, state after) in order of addition, recomputed for the final set."""
+    rounds: list[list[dict[str, Any]]]
+    not_excited: dict[str, str]
+    dropped: list[dict[str, Any]]
+
+
+def candidate_list(p: Prepared, exclude: set[tuple[str, str]]) -> tuple[list[tuple[Candidate, str]], dict[str, str]]:
+    """(candidate, axis) pairs to try, and why others cannot be seen in these data."""
+    out, why = [], {}
+    for cand in CANDIDATES.values():
+        if cand.missing(p):
+            continue
+        for ax in cand.candidate_axes(p):
+            if (cand.name, ax) in exclude or (cand.name, "all") in exclude:
+                continue
+            reason = cand.not_excited(p, ax)
+            if reason:
+                why[f"{cand.name}:{ax}"] = reason
+                continue
+            out.append((cand, ax))
+    return out, why
+
+
+def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> Search:
+    """Forward selection then backward elimination (module docstring)."""
+    base = build_state(p, base_terms)
+    state = base
+    rounds: list[list[dict[str, Any]]] = []
+    exclude = {t.key for t in base_terms if t.effect != "baseline"}
+    found: list[Term] = []
+    not_excited: dict[str, str] = {}
+    for _ in range(max_terms):
+        cands, why = candidate_list(p, exclude | {t.key for t in found})
+        not_excited.update(why)
+        ctx = state.context()
+        evals = [e for c, ax in cands if (e := evaluate(p, state, c, ax, ctx)) is not None]
+        rounds.append([e.row() for e in sorted(evals, key=lambda e: e.d_ic)])
+        ok = [e for e in evals if e.acceptable]
+        if not ok:
+            break
+        best = min(ok, key=lambda e: e.d_ic)
+        nl = best.nl_full
+        term = Term(best.cand.name, best.axis, nl, best.cand.build(p, best.axis, nl, ctx),
+                    evidence={"d_ic": best.d_ic, "t": best.t, "gain": best.gain, "phi": best.phi})
+        found.append(term)
+        state = add_term(p, state, term)
+    # backward elimination
+    dropped: list[dict[str, Any]] = []
+    changed = True
+    while changed and len(found) > 0:
+        changed = False
+        for term in list(found):
+            others = [t for t in found if t is not term]
+            reduced = build_state(p, base_terms + others)
+            ctx = reduced.context()
+            cand = CANDIDATES[term.effect]
+            nl = dict(term.nl)
+            if cand.select_by_cv:
+                e = evaluate(p, reduced, cand, term.axis, ctx)
+            else:
+                e = evaluate(p, reduced, cand, term.axis, ctx, grid=[nl])
+            if e is None or not e.acceptable:
+                dropped.append({"effect": term.effect, "axis": term.axis, **({} if e is None else e.row())})
+                found = others
+                changed = True
+                break
+            term.evidence.update({"d_ic": e.d_ic, "t": e.t, "gain": e.gain, "phi": e.phi})
+            if cand.select_by_cv:  # penalised term: its penalty depends on the noise of the others
+                term.nl = e.nl_full
+                term.built = cand.build(p, term.axis, e.nl_full, ctx)
+    # final sequence with before/after states
+    seq = []
+    state = base
+    for term in found:
+        if CANDIDATES[term.effect].select_by_cv:  # rebuild the penalty against the current noise
+            term.built = CANDIDATES[term.effect].build(p, term.axis, term.nl, state.context())
+        after = add_term(p, state, term)
+        seq.append((term, state, after))
+        state = after
+    return Search(base, state, seq, rounds, not_excited, dropped)

@@ -1,0 +1,139 @@
+"""What ``bench diagnose`` reports: per-axis held-out RMS, findings, skipped candidates, the
+human summary and the extended sensor model."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.analysis.diagnose.terms import CANDIDATES
+
+SCHEMA = "bench-sensor-model/1"
+
+
+@dataclass
+class Finding:
+    """A missing effect: vocabulary ``effect`` on ``axis`` (x, y, z or all) with its physical
+    ``params``; held-out RMS (deg/s) before and after adding it, and their ratio ``gain``."""
+
+    effect: str
+    axis: str
+    params: dict[str, Any]
+    rms_before: float
+    rms_after: float
+    evidence: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def gain(self) -> float:
+        return self.rms_before / self.rms_after if self.rms_after > 0 else float("inf")
+
+    def as_json(self) -> dict[str, Any]:
+        return {"effect": self.effect, "axis": self.axis, "params": self.params,
+                "rms_before": self.rms_before, "rms_after": self.rms_after, "gain": self.gain}
+
+    def as_effect(self) -> dict[str, Any]:
+        """The entry of a sensor model's ``effects:`` list."""
+        return {"effect": self.effect, "axis": self.axis, "params": dict(self.params),
+                "source": f"bench diagnose: held-out RMS {self.rms_before:.3g} -> {self.rms_after:.3g} deg/s"}
+
+    def describe(self) -> str:
+        return CANDIDATES[self.effect].describe(self.params)
+
+
+@dataclass
+class DiagnoseResult:
+    """Result of :func:`bench.analysis.diagnose.diagnose`.
+
+    ``axes``: axis → {rms_baseline, rms_extended} (held-out residual RMS, deg/s); ``findings`` in
+    order of addition; ``skipped``: vocabulary terms whose columns (or metadata) are absent, with
+    ``skipped_reasons``; ``not_excited``: terms whose columns exist but do not vary enough on an
+    axis (``"name:axis" -> reason``); ``noise_floor``: per-axis white-noise RMS estimated from
+    successive differences of the extended model's residual (deg/s)."""
+
+    source: str
+    axes: dict[str, dict[str, float]]
+    findings: list[Finding]
+    skipped: list[str]
+    skipped_reasons: dict[str, list[str]] = field(default_factory=dict)
+    not_excited: dict[str, str] = field(default_factory=dict)
+    noise_floor: dict[str, float] = field(default_factory=dict)
+    rows: int = 0
+    sample_rate_hz: float = float("nan")
+    model_path: str | None = None
+    base_model: dict[str, Any] | None = None
+    fitted_baseline: dict[str, Any] = field(default_factory=dict)
+    rounds: list[list[dict[str, Any]]] = field(default_factory=list)
+    dropped: list[dict[str, Any]] = field(default_factory=list)
+    fixed_terms: list[str] = field(default_factory=list)
+    _internal: Any = field(default=None, repr=False)
+
+    @property
+    def json(self) -> dict[str, Any]:
+        """The ``--json`` document (exact shape of ``docs/diagnose.md``)."""
+        return {
+            "axes": {a: {"rms_baseline": v["rms_baseline"], "rms_extended": v["rms_extended"]} for a, v in self.axes.items()},
+            "findings": [f.as_json() for f in self.findings],
+            "skipped": list(self.skipped),
+        }
+
+    def summary_lines(self) -> list[str]:
+        """Human summary: one line per axis, one per all-axes finding, then skipped terms."""
+        lines = []
+        for a, v in self.axes.items():
+            mine = [f for f in self.findings if f.axis == a]
+            shared = [f for f in self.findings if f.axis == "all"]
+            head = f"{a}: baseline residual {v['rms_baseline']:.2g} deg/s"
+            if not mine and not shared:
+                floor = self.noise_floor.get(a)
+                fl = f", noise floor {floor:.2g} deg/s" if floor else ""
+                lines.append(f"{head} held-out{fl}: nothing missing")
+                continue
+            parts = [head] + [f"missing effect {f.effect}: {f.describe()}" for f in mine]
+            if shared:
+                parts.append("with " + ", ".join(f.effect for f in shared) + " (all axes)")
+            ratio = v["rms_baseline"] / v["rms_extended"] if v["rms_extended"] > 0 else float("inf")
+            parts.append(f"extended model {v['rms_extended']:.2g} deg/s held-out ({ratio:.1f}x)")
+            lines.append("; ".join(parts))
+        for f in self.findings:
+            if f.axis == "all":
+                lines.append(f"all axes: missing effect {f.effect}: {f.describe()}; held-out RMS "
+                             f"{f.rms_before:.2g} -> {f.rms_after:.2g} deg/s ({f.gain:.1f}x)")
+        if not self.findings:
+            lines.append("nothing missing: the baseline model explains the data down to the noise")
+        if self.skipped:
+            lines.append("skipped (columns absent): " + ", ".join(
+                f"{s} ({', '.join(self.skipped_reasons.get(s, []))})" for s in self.skipped))
+        return lines
+
+    def extended_model(self) -> dict[str, Any]:
+        """A sensor-model document (``schema: bench-sensor-model/1``) with the findings appended to
+        ``effects:``: the model file's keys when one was given, else an ``npsat1_gyro`` model of
+        the fitted baseline (bias polynomial, misalignment, white noise as angle random walk)."""
+        if self.base_model is not None:
+            out = {k: v for k, v in self.base_model.items() if k != "effects"}
+            effects = list(self.base_model.get("effects") or [])
+        else:
+            out = {"schema": SCHEMA, "model": "npsat1_gyro",
+                   "description": f"fitted by bench diagnose from {self.source}",
+                   "source": "bench diagnose baseline fit (docs/diagnose.md)", **self.fitted_baseline}
+            effects = []
+        out["schema"] = SCHEMA
+        out["effects"] = effects + [f.as_effect() for f in self.findings]
+        return _plain(out)
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (np.floating,)):
+        return float(v)
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
