@@ -44,13 +44,13 @@ from bench.errors import InputError, InputErrors, InstrumentError, ProtocolError
 from bench.procedure import load_procedure, parse_procedure
 from bench.record.reader import read_run_summary
 from bench.record.writer import FORMAT_VERSION
+from bench.yamlsrc import load_yaml
 from drivers import acs_protocol as proto
 from drivers.acs_board import AcsBoard
 from drivers.can_serial import CanSerialPort, parse_can_serial_url
 from drivers.stepper_bench import StepperBench
 from drivers.thermocouple_reader import ThermocoupleReader
 from drivers.tpg261 import Tpg261, parse_pr_reply
-from bench.yamlsrc import load_yaml
 from tests.conftest import ROOT
 
 _BASE = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
@@ -531,12 +531,9 @@ _TAGS = ["!!python/object/apply:os.system ", "!!python/name:os.system ", "!!pyth
 _TYPE_CHANGES = ["[1, 2]", "{a: 1}", "42", "true", "null", "'text'", "-1e999", ".nan", "0x1F", "2001-01-01", "9" * 400, "[]", "{}"]
 
 
-@fuzz(150)
-@given(source=st.sampled_from(PROCEDURES + CONFIGS), data=st.data())
-def test_textual_mutations_of_shipped_files_load_or_name_the_file(tree, source, data):
-    """Delete a line, change a value's type, insert garbage, a tag or non-UTF-8 bytes, truncate the file at a random byte."""
-    kind = "procedure" if source.parent.name == "procedures" else "config"
-    raw = source.read_bytes()
+def _mutate_text(raw: bytes, data: st.DataObject) -> bytes:
+    """Delete a line, change a value's type, insert garbage, a tag or non-UTF-8 bytes, indent a
+    line, truncate at a random byte (once or twice)."""
     for _ in range(data.draw(st.integers(1, 2))):
         lines = raw.split(b"\n")
         i = data.draw(st.integers(0, len(lines) - 1))
@@ -544,29 +541,54 @@ def test_textual_mutations_of_shipped_files_load_or_name_the_file(tree, source, 
         how = data.draw(st.sampled_from(["delete_line", "type", "garbage", "tag", "non_utf8", "truncate", "indent"]))
         if how == "delete_line":
             del lines[i]
-            raw = b"\n".join(lines)
         elif how == "type":
             cut = lines[i].find(b": ")
             if cut >= 0:
                 lines[i] = lines[i][:cut + 2] + data.draw(st.sampled_from(_TYPE_CHANGES)).encode()
-            raw = b"\n".join(lines)
-        elif how == "garbage":
-            raw = raw[:at] + data.draw(_GARBAGE_TEXT).encode("utf-8") + raw[at:]
         elif how == "tag":
             cut = lines[i].find(b": ")
             tag = data.draw(st.sampled_from(_TAGS)).encode()
             lines[i] = lines[i][:cut + 2] + tag + lines[i][cut + 2:] if cut >= 0 else tag + lines[i]
-            raw = b"\n".join(lines)
+        elif how == "indent":
+            lines[i] = b" " * data.draw(st.integers(1, 3)) + lines[i]
+        raw = b"\n".join(lines)
+        if how == "garbage":
+            raw = raw[:at] + data.draw(_GARBAGE_TEXT).encode("utf-8") + raw[at:]
         elif how == "non_utf8":
             raw = raw[:at] + data.draw(st.sampled_from([b"\xff", b"\xc3", b"\x80\x80", b"\xed\xa0\x80", b"\xfe\xff"])) + raw[at:]
         elif how == "truncate":
             raw = raw[:at]
-        else:
-            lines[i] = b" " * data.draw(st.integers(1, 3)) + lines[i]
-            raw = b"\n".join(lines)
+    return raw
+
+
+@fuzz(200)
+@given(source=st.sampled_from(PROCEDURES + CONFIGS), data=st.data())
+def test_textual_mutations_of_shipped_files_load_or_name_the_file(tree, source, data):
+    kind = "procedure" if source.parent.name == "procedures" else "config"
     fuzzed = tree / source.parent.relative_to(ROOT) / f"fuzzed_{source.name}"
-    fuzzed.write_bytes(raw)
+    fuzzed.write_bytes(_mutate_text(source.read_bytes(), data))
     _check_loads_or_names_file(kind, fuzzed)
+
+
+_REFERENCES = [("configs/sim.yaml", "configs/sensors/acs_board_simple.yaml"),
+               ("procedures/vibe_functional.yaml", "configs/vibration/low_level_sine_sweep.yaml"),
+               ("procedures/vibe_functional.yaml", "configs/vibration/gevs_workmanship.yaml")]
+
+
+@fuzz(40)
+@given(pair=st.sampled_from(_REFERENCES), data=st.data())
+def test_mutated_referenced_files_are_named_by_the_loader(tree, pair, data):
+    """A sensor model (referenced by a config) or a vibration profile (by a procedure) damaged."""
+    referencing, referenced = (tree / p for p in pair)
+    original = referenced.read_bytes()
+    referenced.write_bytes(_mutate_text(original, data))
+    try:
+        _load("config" if referencing.parent.name == "configs" else "procedure", referencing)
+    except InputError as exc:
+        assert referenced.name in str(exc), str(exc)
+        assert all("\n" not in e.one_line() for e in (exc.errors if isinstance(exc, InputErrors) else [exc]))
+    finally:
+        referenced.write_bytes(original)
 
 
 @pytest.mark.parametrize("tagged", [
@@ -1013,31 +1035,42 @@ def test_dataset_from_run_with_missing_or_misshapen_columns(tmp_path, change, ne
     assert str(info.value).startswith(f"{path}: ")
 
 
+def test_latitude_of_an_unreadable_recorded_config_is_unknown():
+    """RecursionError / ValueError escaped from the latitude lookup of ``dataset_from_run`` before."""
+    from bench.analysis.dataset import _latitude_from_config
+
+    for text in ("x: " + "[" * 3000, "world: {latitude: " + "9" * 5000 + "}", "world: [1]", "- a", "\x00"):
+        assert _latitude_from_config(text) is None
+    assert _latitude_from_config("world: {latitude: 36.4 deg}") == pytest.approx(36.4)
+
+
 # =================================================================================================
 # 5. the CLI end to end
 # =================================================================================================
 def test_cli_exits_2_without_traceback_on_fuzzed_inputs(tmp_path):
-    startup = (ROOT / "procedures" / "startup_profile.yaml").read_bytes()
-    procs = {
-        "tag.yaml": startup.replace(b"instruments: [acs_board]", b"instruments: !!python/object/apply:os.system [acs_board]"),
-        "truncated.yaml": startup[: len(startup) // 2 + 7],
-        "latin1.yaml": startup.replace(b"name: startup_profile", b"name: startup_\xe9"),
-        "alias.yaml": startup.replace(b"instruments: [acs_board]", b"instruments: &a [*a]"),
-        "nested.yaml": startup + b"x: " + b"[" * 3000 + b"\n",
-    }
+    """``bench validate`` (procedure, and config with --config) and ``bench inspect`` on inputs that
+    each raised RecursionError, loaded a tagged list, or hung before."""
+    startup = ROOT / "procedures" / "startup_profile.yaml"
     session = (ROOT / "tests" / "sessions" / "chamber_interlock_abort.h5").read_bytes()
     overwritten = bytearray(session)
     overwritten[96:160] = bytes(range(64))
-    runs = {
-        "gcol_cut.h5": session[: session.rfind(b"GCOL") + 40],  # hung forever before
+    files = {
+        "tag.yaml": startup.read_bytes().replace(b"instruments: [acs_board]", b"instruments: !!python/object/apply:os.system [acs_board]"),
+        "nested.yaml": startup.read_bytes() + b"x: " + b"[" * 3000 + b"\n",
+        "latin1_config.yaml": (ROOT / "configs" / "sim.yaml").read_bytes().replace(b"name: simulated-lab", b"name: simul\xe9"),
+        "gcol_cut.h5": session[: session.rfind(b"GCOL") + 40],
         "overwritten.h5": bytes(overwritten),
-        "empty.h5": b"",
     }
     jobs = []
-    for name, content in {**procs, **runs}.items():
+    for name, content in files.items():
         path = tmp_path / name
         path.write_bytes(content)
-        cmd = ["validate" if name.endswith(".yaml") else "inspect", str(path)]
+        if name.endswith(".h5"):
+            cmd = ["inspect", str(path)]
+        elif "config" in name:
+            cmd = ["validate", str(startup), "--config", str(path)]
+        else:
+            cmd = ["validate", str(path)]
         jobs.append((path, subprocess.Popen([sys.executable, "-m", "bench", *cmd], cwd=ROOT, stdout=subprocess.PIPE,
                                             stderr=subprocess.PIPE, text=True)))
     for path, proc in jobs:
