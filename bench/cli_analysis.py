@@ -173,15 +173,12 @@ def _sha256(path: Path) -> str:
 
 def _plain(v: Any) -> Any:
     """numpy scalars and arrays as plain Python for JSON/YAML."""
-    try:
-        import numpy as np
+    import numpy as np
 
-        if isinstance(v, np.ndarray):
-            return v.tolist()
-        if isinstance(v, np.generic):
-            return v.item()
-    except ImportError:  # pragma: no cover
-        pass
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
     if isinstance(v, Path):
         return str(v)
     raise TypeError(f"not serialisable: {type(v).__name__}")

@@ -254,14 +254,16 @@ def _board_frames_lost(path: Path, injected, session) -> int:
     if not board:
         return 0
     name = board[0]
+    from bench.record.reader import read_stream
+
     try:
-        with h5py.File(path, "r") as f:
-            if f"streams/{name}/counter" not in f:
-                return 0
-            counter = f[f"streams/{name}/counter"][:].astype(np.int64)
-            t = f[f"streams/{name}/time"][: counter.shape[0]]
-    except (OSError, KeyError, ValueError):
+        stream = read_stream(path, name)
+    except InputError:
+        return 0  # no board stream in this run (or unreadable: counted as such)
+    if "counter" not in stream:
         return 0
+    counter = stream["counter"].astype(np.int64)
+    t = stream["time"]
     if counter.size < 2:
         return 0
     windows = [(f.t_s, f.t_s + (f.duration_s or 0.0) + FAULT_WINDOW_SLACK_S) for f in injected if f.target == name]

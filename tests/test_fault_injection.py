@@ -233,3 +233,24 @@ def test_24_hour_soak_three_faults_per_hour(tmp_path: Path):
     check_soak(report, tmp_path)
     assert report["run_time_h"] >= 24
     assert np.isclose(report["faults_injected"] / report["run_time_h"], 3, rtol=0.5)
+
+
+def test_soak_loss_measure_sees_missing_frames_outside_fault_windows(tmp_path: Path):
+    """The data-loss measure is not vacuous: frames cut from a run file outside any fault window count."""
+    from types import SimpleNamespace
+
+    from bench.soak import _board_frames_lost
+
+    result, summary, session = run(tmp_path, "[acs_board]", BOARD, "serial_noise@50s")
+    assert result.status == "completed"
+    path = session.recorder.path
+    assert _board_frames_lost(path, [], session) == 0
+    with h5py.File(path, "r+") as f:  # lose 100 frames at 20-21 s: shift the rest of the counter up
+        c = f["streams/acs_board/counter"]
+        t = f["streams/acs_board/time"][:]
+        i = int(np.searchsorted(t, 20.0))
+        c[i:] = (c[i:].astype(np.int64) + 100) % 65536
+    lab = SimpleNamespace(kinds={"acs_board": "acs_board"})
+    assert _board_frames_lost(path, [], SimpleNamespace(lab=lab)) == 100
+    fault = SimpleNamespace(target="acs_board", t_s=18.0, duration_s=1.0)  # a fault there explains it
+    assert _board_frames_lost(path, [fault], SimpleNamespace(lab=lab)) == 0
