@@ -76,6 +76,9 @@ class InstrumentConfig:
     """Safety limits of this lab's instrument: quantity -> (low, high); see bench.procedure.limits."""
     reconnect_timeout_s: float = 30.0
     """How long a run keeps reconnecting to this instrument after a link fault before it aborts (s)."""
+    compensation: Any = None
+    """acs_board: gyro compensation (NPSAT1 Eq. 2) from the ``calibration:`` files
+    (:class:`bench.model.compensation.Compensation`), or None."""
 
 
 @dataclass
@@ -207,11 +210,35 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
         reconnect = _quantity(n, "s", "reconnect_timeout", errors, reconnect)
         if not 0 <= reconnect <= 3600:
             errors.append(InputError("expected a reconnect timeout between 0 s (abort at once) and 1 h", n.location, "reconnect_timeout"))
+    compensation = _compensation(driver, f.node_at("calibration"), base, errors)
     f.check_unknown()
     if len(errors) > before:
         return None
     return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
-                            channels, tc_type, poll, limits, reconnect)
+                            channels, tc_type, poll, limits, reconnect, compensation)
+
+
+def _compensation(driver: str | None, node: Node | None, base: Path, errors: list[InputError]) -> Any:
+    """``calibration: FILE`` or ``[FILE, ...]`` (acs_board): gyro compensation terms, paths relative
+    to the config's directory (bench/model/compensation.py)."""
+    if node is None:
+        return None
+    if driver != "acs_board":
+        errors.append(InputError("only an acs_board takes calibration files (gyro compensation)", node.location, "calibration"))
+        return None
+    items = node.value if isinstance(node.value, list) else [node]
+    if not items or not all(isinstance(n.value, str) and n.value for n in items):
+        errors.append(InputError("expected a calibration file or a list of them", node.location, "calibration"))
+        return None
+    from bench.model.compensation import load_compensation
+
+    try:
+        return load_compensation([base / n.value for n in items])
+    except InputErrors as exc:
+        errors.extend(exc.errors)
+    except InputError as exc:
+        errors.append(exc if exc.location is not None else InputError(exc.message, node.location, "calibration"))
+    return None
 
 
 def _instrument_limits(driver: str | None, node: Node | None, errors: list[InputError]) -> dict[str, tuple]:

@@ -88,6 +88,8 @@ def driver_kwargs(inst: InstrumentConfig) -> dict[str, Any]:
         return {"gauge_url": inst.gauge_port, "gauge_baudrate": inst.gauge_baudrate, "safe_set_point_c": inst.safe_set_point_c}
     if inst.driver == "thermocouple_reader":
         return {"monitor_channels": inst.channels, "tc_type": inst.tc_type}
+    if inst.driver == "acs_board" and inst.compensation is not None:
+        return {"compensation": inst.compensation}
     return {}
 
 

@@ -60,8 +60,11 @@ class AcsBoard:
         timeout_s: float = DEFAULT_TIMEOUT_S,
         retries: int = 2,
         on_traffic: TrafficHook | None = None,
+        compensation=None,
     ):
         self.port = port
+        self.compensation = compensation
+        """Gyro compensation (:class:`bench.model.compensation.Compensation`, NPSAT1 Eq. 2) or None."""
         self.timeout_s = timeout_s
         self.retries = retries
         self.on_traffic = on_traffic
@@ -136,6 +139,13 @@ class AcsBoard:
         self._pending = []
         self.unsolicited_replies += len(batch.replies)
         return batch
+
+    def compensated_gyro(self, batch: DecodedBatch) -> np.ndarray:
+        """The batch's gyro rates compensated with :attr:`compensation` (n, 3) deg/s, using the gyro
+        die temperature (first temperature channel, °C). Raises ``ValueError`` without one."""
+        if self.compensation is None:
+            raise ValueError("acs_board: no calibration configured (instrument 'calibration:' in the lab config)")
+        return self.compensation.apply(batch.gyro_dps, batch.temp_degc[:, 0])
 
     def _feed(self, data: bytes) -> DecodedBatch:
         batch = self.decoder.feed(data)

@@ -42,6 +42,9 @@ ACS_COLUMNS = [
 ]
 """Stream layout of a sensor board: temp = (gyro die, accel die, board)."""
 
+COMPENSATED_COLUMN = Column("gyro_comp", "deg/s", "f8", (3,))
+"""Added when the board has a calibration: the gyro rates compensated with NPSAT1 Eq. 2."""
+
 RECONNECT_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
 """Waits between reconnection attempts after a link fault (s of run time); the last repeats."""
 
@@ -165,6 +168,9 @@ class Runner:
         for name, drv in self.lab.instruments.items():
             info = drv.identify()
             info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=str(getattr(getattr(drv, "port", None), "baudrate", "")))
+            comp = getattr(drv, "compensation", None)
+            if comp is not None:
+                info["compensation"] = comp.describe()
             self.rec.add_instrument(name, {k: str(v) for k, v in info.items()})
             if not drv.streams:
                 if hasattr(drv, "monitor_columns"):
@@ -173,7 +179,7 @@ class Runner:
                     self.monitor_keys[name] = self.rec.add_stream(name, cols, "monitor", rate_hz=1.0 / interval)
                     self._monitor_due[name] = 0.0
                 continue  # an instrument without a data stream: polled, its commands recorded
-            self.stream_keys[name] = self.rec.add_stream(name, ACS_COLUMNS)
+            self.stream_keys[name] = self.rec.add_stream(name, ACS_COLUMNS + ([COMPENSATED_COLUMN] if comp is not None else []))
             self.stream_stats[name] = {"frames": 0, "crc_errors": 0, "dropped_frames": 0, "garbage_bytes": 0}
             self._time_offset[name] = None
         for lock in self.procedure.interlocks:
@@ -501,10 +507,11 @@ class Runner:
             # Map board time to run time: the newest frame of the first batch arrived just now.
             self._time_offset[name] = self.clock.now() - float(batch.board_time_s[-1])
         time_s = batch.board_time_s + self._time_offset[name]
+        extra = {"gyro_comp": drv.compensated_gyro(batch)} if getattr(drv, "compensation", None) is not None else {}
         self.rec.append(
             self.stream_keys[name], time_s,
             counter=batch.counter, board_time=batch.board_time_s, gyro=batch.gyro_dps, accel=batch.accel_g,
-            mag=batch.mag_ut, temp=batch.temp_degc, status=batch.status,
+            mag=batch.mag_ut, temp=batch.temp_degc, status=batch.status, **extra,
         )
         stats["frames"] += n
         self._last_frame_t[name] = float(time_s[-1])
