@@ -12,7 +12,7 @@ import yaml
 from bench.cli import main
 from bench.config import load_config
 from bench.errors import InputError
-from bench.model.compensation import Compensation, load_compensation
+from bench.model.compensation import load_compensation
 from tests.conftest import ROOT, SIM_CONFIG
 
 SIMPLE_POLY = [-1.150e-1, -7.561e-3, -1.124e-4]  # configs/sensors/acs_board_simple.yaml gyro bias vs °C

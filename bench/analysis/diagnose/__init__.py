@@ -20,14 +20,14 @@ import numpy as np
 
 from bench.analysis.dataset import Dataset
 from bench.analysis.diagnose.data import Prepared, prepare
-from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
+from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
                                             build_state, has_temp_cubic, search)
 from bench.analysis.diagnose.result import DiagnoseResult, Finding
 from bench.analysis.diagnose.terms import AXES, CANDIDATES, Built, Context
 from bench.errors import InputError
 from bench.model import effects as fx
 
-__all__ = ["diagnose", "DiagnoseResult", "Finding", "write_report", "IC_MIN", "T_MIN", "GAIN_MIN"]
+__all__ = ["diagnose", "DiagnoseResult", "Finding", "write_report", "IC_MIN", "GAIN_MIN"]
 
 
 def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0) -> DiagnoseResult:
@@ -159,11 +159,15 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
     floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
+    from bench.analysis.diagnose.structure import analyse
+
+    structure = {stage: {a: analyse(p, a, st.axes[a].heldout_resid(p.blocks), floors[a]) for a in p.axes}
+                 for stage, st in (("baseline", s.baseline), ("extended", s.final))}
     return DiagnoseResult(
         source=ds.source, axes=axes, findings=findings, skipped=skipped, skipped_reasons=reasons,
         not_excited=s.not_excited, noise_floor=floors, rows=p.n, sample_rate_hz=p.fs, model_path=model_path,
         base_model=raw, fitted_baseline=_fitted_baseline(p, s), rounds=s.rounds, dropped=s.dropped,
-        fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], _internal=(p, s))
+        fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, _internal=(p, s))
 
 
 def _temp_coefs(state: Any, a: str) -> np.ndarray:

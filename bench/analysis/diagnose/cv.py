@@ -84,30 +84,91 @@ def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:
     return x[..., 0] if vec else x
 
 
-def augment(A: np.ndarray, X: np.ndarray, y: np.ndarray, blocks: Blocks, Z: np.ndarray | None = None,
+class SparseHat:
+    """Linear-spline (hat) columns without the dense (n, k) matrix: row i has value a_i in column
+    j_i and b_i in column j_i + 1. Used for the random-walk spline's candidate evaluation."""
+
+    def __init__(self, j: np.ndarray, a: np.ndarray, b: np.ndarray, k: int):
+        self.j, self.a, self.b, self.k = j, a, b, int(k)
+        self.shape = (int(j.shape[0]), self.k)
+
+    def col_rms(self) -> np.ndarray:
+        n = self.shape[0]
+        sq = np.bincount(self.j, self.a ** 2, minlength=self.k + 1)[: self.k + 1]
+        sq = sq + np.concatenate([[0.0], np.bincount(self.j, self.b ** 2, minlength=self.k)[: self.k]])
+        return np.sqrt(sq[: self.k] / n)
+
+    def scaled(self, s: np.ndarray) -> "SparseHat":
+        return SparseHat(self.j, self.a / s[self.j], self.b / s[self.j + 1], self.k)
+
+    def dense(self) -> np.ndarray:
+        out = np.zeros(self.shape)
+        rows = np.arange(self.shape[0])
+        out[rows, self.j] = self.a
+        out[rows, self.j + 1] += self.b
+        return out
+
+    def block_products(self, blocks: Blocks, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-block Zᵀ V (B, k, c) and ZᵀZ (B, k, k)."""
+        B, k = blocks.count, self.k
+        blk = np.arange(self.shape[0]) // blocks.length
+        i0 = blk * (k + 1) + self.j
+        i1 = i0 + 1
+        size = B * (k + 1)
+        V = V.reshape(self.shape[0], -1)
+        zv = np.empty((B, k + 1, V.shape[1]))
+        for c in range(V.shape[1]):
+            col = np.bincount(i0, self.a * V[:, c], minlength=size) + np.bincount(i1, self.b * V[:, c], minlength=size)
+            zv[:, :, c] = col.reshape(B, k + 1)
+        d0 = np.bincount(i0, self.a ** 2, minlength=size) + np.bincount(i1, self.b ** 2, minlength=size)
+        off = np.bincount(i0, self.a * self.b, minlength=size).reshape(B, k + 1)
+        zz = np.zeros((B, k + 1, k + 1))
+        idx = np.arange(k + 1)
+        zz[:, idx, idx] = d0.reshape(B, k + 1)
+        zz[:, idx[:-1], idx[1:]] = off[:, :-1]
+        zz[:, idx[1:], idx[:-1]] = off[:, :-1]
+        return zv[:, :k], zz[:, :k, :k]
+
+
+def augment(A: np.ndarray, Xb: np.ndarray, yb: np.ndarray, blocks: Blocks, Z: np.ndarray | None = None,
             y_new: np.ndarray | None = None) -> np.ndarray:
     """Augmented block Grams of [X | Z | y_new] from those of [X | y] (``A``) without recomputing XᵀX.
 
+    ``Xb`` (B, L, m) and ``yb`` (B, L, 1) are X and y in block layout (:meth:`Blocks.shaped`);
     ``Z`` (n, q) new columns or None; ``y_new`` a changed response (a fixed offset subtracted) or
-    None to keep ``y``."""
-    m = X.shape[1]
+    None to keep y."""
+    m = Xb.shape[2]
     q = 0 if Z is None else Z.shape[1]
     B = A.shape[0]
     out = np.empty((B, m + q + 1, m + q + 1))
     out[:, :m, :m] = A[:, :m, :m]
-    yy = y if y_new is None else y_new
     if y_new is None:
+        ybn = yb
         out[:, :m, -1] = A[:, :m, m]
         out[:, -1, -1] = A[:, m, m]
     else:
-        xy = blocks.gram(X, yy[:, None])[:, :, 0] if m else np.zeros((B, 0))
-        out[:, :m, -1] = xy
-        out[:, -1, -1] = blocks.gram(yy[:, None])[:, 0, 0]
+        ybn = blocks.shaped(y_new)
+        out[:, :m, -1] = np.matmul(Xb.transpose(0, 2, 1), ybn)[:, :, 0] if m else 0.0
+        out[:, -1, -1] = np.einsum("bl,bl->b", ybn[:, :, 0], ybn[:, :, 0])
     out[:, -1, :m] = out[:, :m, -1]
-    if q:
-        zr = blocks.gram(Z, np.column_stack([X, Z, yy]))  # (B, q, m+q+1)
-        out[:, m:m + q, :] = zr
-        out[:, :, m:m + q] = zr.transpose(0, 2, 1)
+    if q and isinstance(Z, SparseHat):
+        X = Xb.reshape(-1, m)[: blocks.n] if m else np.zeros((blocks.n, 0))
+        zv, zz = Z.block_products(blocks, np.column_stack([X, ybn.reshape(-1)[: blocks.n]]))
+        out[:, m:m + q, :m] = zv[:, :, :m]
+        out[:, :m, m:m + q] = zv[:, :, :m].transpose(0, 2, 1)
+        out[:, m:m + q, m:m + q] = zz
+        out[:, m:m + q, -1] = zv[:, :, m]
+        out[:, -1, m:m + q] = zv[:, :, m]
+    elif q:
+        Zb = blocks.shaped(Z)
+        Zt = Zb.transpose(0, 2, 1)
+        zx = np.matmul(Zt, Xb)
+        out[:, m:m + q, :m] = zx
+        out[:, :m, m:m + q] = zx.transpose(0, 2, 1)
+        out[:, m:m + q, m:m + q] = np.matmul(Zt, Zb)
+        zy = np.matmul(Zt, ybn)[:, :, 0]
+        out[:, m:m + q, -1] = zy
+        out[:, -1, m:m + q] = zy
     return out
 
 

@@ -25,18 +25,21 @@ slowest transients modelled (warm-up, pressure, thermal), so held-out blocks hav
 neighbours on both sides."""
 FOLDS = 5
 """Blocks are dealt to folds in turn (block b → fold b mod 5): every fold holds out one block in
-five, spread over the whole session."""
+five, spread over the whole session. Blocks carrying a rarely excited reference rate (a cross
+axis that only turns during tilt moves) are dealt round-robin first (:meth:`Blocks.balance`)."""
 RATE_EXCITED_DPS = 0.05
 """An axis whose reference rate RMS is below this (deg/s) has no rate-dependent terms fitted."""
 
 
 @dataclass
 class Blocks:
-    """Contiguous blocks of ``length`` samples (the last may be shorter) dealt to ``folds`` folds."""
+    """Contiguous blocks of ``length`` samples (the last may be shorter) dealt to ``folds`` folds:
+    block b to fold b mod K, except blocks holding rare excitation (:meth:`balance`)."""
 
     n: int
     length: int
     folds: int = FOLDS
+    assignment: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -45,11 +48,40 @@ class Blocks:
     @property
     def fold_of(self) -> np.ndarray:
         """Fold index of each block (B,)."""
+        if self.assignment is not None:
+            return self.assignment
         return np.arange(self.count) % self.folds
 
     def row_fold(self) -> np.ndarray:
         """Fold index of each row (n,)."""
-        return (np.arange(self.n) // self.length) % self.folds
+        return self.fold_of[np.arange(self.n) // self.length]
+
+    def balance(self, columns: np.ndarray, share: float = 0.5) -> None:
+        """Deal the blocks that carry a rarely excited column round-robin over the folds.
+
+        For each column (n, k), the fewest blocks holding ``share`` of its energy are, when they are
+        fewer than 4 per fold, dealt to folds in turn (largest first), so that no fold's training
+        set misses all of a column's excitation (e.g. the few tilt moves that give a cross axis its
+        only rate); the other blocks keep b mod K."""
+        fold = np.arange(self.count) % self.folds
+        fixed = np.zeros(self.count, bool)
+        nxt = 0
+        cols = columns.reshape(self.n, -1)
+        for k in range(cols.shape[1]):
+            e = (self.shaped(cols[:, k] ** 2)).sum(axis=(1, 2))
+            total = float(e.sum())
+            if total <= 0:
+                continue
+            order = np.argsort(e)[::-1]
+            m = int(np.searchsorted(np.cumsum(e[order]), share * total)) + 1
+            if m >= 4 * self.folds:
+                continue
+            for b in order[:m]:
+                if not fixed[b]:
+                    fold[b] = nxt % self.folds
+                    fixed[b] = True
+                    nxt += 1
+        self.assignment = fold
 
     def shaped(self, z: np.ndarray) -> np.ndarray:
         """``z`` (n,) or (n, c) zero-padded and reshaped to (B, L, c)."""
@@ -169,6 +201,8 @@ def prepare(ds: Dataset) -> Prepared:
                     power_on=col("power_on_s"), accel=accel, angle=col("table_angle_deg"),
                     latitude=ds.latitude_deg(), blocks=Blocks(n, length), present=present)
     prep.table_axis = _table_axis(prep)
+    if ref is not None:
+        prep.blocks.balance(ref)
     return prep
 
 

@@ -90,8 +90,11 @@ def _render(result: DiagnoseResult, p: Prepared, s: Search) -> str:
     res_b = {a: s.baseline.axes[a].heldout_resid(p.blocks) for a in p.axes}
     res_e = {a: s.final.axes[a].heldout_resid(p.blocks) for a in p.axes}
     floor = result.noise_floor
-    st_b = {a: analyse(p, a, res_b[a], floor[a]) for a in p.axes}
-    st_e = {a: analyse(p, a, res_e[a], floor[a]) for a in p.axes}
+    if result.structure:
+        st_b, st_e = result.structure["baseline"], result.structure["extended"]
+    else:
+        st_b = {a: analyse(p, a, res_b[a], floor[a]) for a in p.axes}
+        st_e = {a: analyse(p, a, res_e[a], floor[a]) for a in p.axes}
 
     # summary
     lines = "".join(f"<li>{esc(line)}</li>" for line in result.summary_lines())

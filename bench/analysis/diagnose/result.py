@@ -68,6 +68,9 @@ class DiagnoseResult:
     rounds: list[list[dict[str, Any]]] = field(default_factory=list)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     fixed_terms: list[str] = field(default_factory=list)
+    structure: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict, repr=False)
+    """``structure[stage][axis]`` for stage baseline/extended: the held-out residual's covariate
+    correlations, Allan deviation vs white noise, spectra (``structure.analyse``)."""
     _internal: Any = field(default=None, repr=False)
 
     @property
@@ -97,6 +100,10 @@ class DiagnoseResult:
             ratio = v["rms_baseline"] / v["rms_extended"] if v["rms_extended"] > 0 else float("inf")
             parts.append(f"extended model {v['rms_extended']:.2g} deg/s held-out ({ratio:.1f}x)")
             lines.append("; ".join(parts))
+        for a in self.axes:
+            line = self.structure_line(a)
+            if line:
+                lines.append(line)
         for f in self.findings:
             if f.axis == "all":
                 lines.append(f"all axes: missing effect {f.effect}: {f.describe()}; held-out RMS "
@@ -107,6 +114,28 @@ class DiagnoseResult:
             lines.append("skipped (columns absent): " + ", ".join(
                 f"{s} ({', '.join(self.skipped_reasons.get(s, []))})" for s in self.skipped))
         return lines
+
+    def structure_line(self, axis: str, stage: str = "baseline") -> str | None:
+        """What the residual of ``stage`` on ``axis`` correlates with, when it is not white noise:
+        covariates with |r| ≥ 0.2, Allan deviation over the white-noise line at the longest τ,
+        the table-angle harmonic with the largest amplitude."""
+        st = self.structure.get(stage, {}).get(axis)
+        if not st:
+            return None
+        corr = sorted(((k, v) for k, v in st["correlations"].items() if math.isfinite(v) and abs(v) >= 0.2),
+                      key=lambda kv: -abs(kv[1]))[:3]
+        ratio = st.get("allan_ratio_max", float("nan"))
+        if not corr and not (math.isfinite(ratio) and ratio > 2.0):
+            return None
+        parts = []
+        if corr:
+            parts.append("correlates with " + ", ".join(f"{k} (r = {v:+.2f})" for k, v in corr))
+        if math.isfinite(ratio):
+            parts.append(f"Allan deviation {ratio:.1f}x white noise at {st['allan_tau_s'][-1]:.4g} s")
+        if "angle_peak" in st:
+            n, amp = st["angle_peak"]
+            parts.append(f"table-angle spectrum peak N = {n} ({100 * amp:.2g} % of rate)")
+        return f"{axis} {stage} residual structure: " + "; ".join(parts)
 
     def extended_model(self) -> dict[str, Any]:
         """A sensor-model document (``schema: bench-sensor-model/1``) with the findings appended to

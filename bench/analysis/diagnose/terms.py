@@ -60,6 +60,9 @@ class Candidate:
     """Continuous nonlinear parameters refined after the grid: (name, log-scale)."""
     select_by_cv: bool = False
     """Choose the grid value by held-out error (penalised terms) instead of nested training error."""
+    resolved: tuple[str, ...] = ()
+    """Nonlinear parameters that must come out below the top of their grid: a transient whose time
+    constant is as long as the data allow is a drift, not an identified transient."""
 
     def missing(self, p: Prepared) -> list[str]:
         """Columns or metadata this term needs that the data lack."""
@@ -95,10 +98,26 @@ def _g(v: Any, d: int = 2) -> str:
     return str(v)
 
 
-def _cached(p: Prepared, key: tuple, fn: Callable[[], np.ndarray]) -> np.ndarray:
-    if key not in p.cache:
-        p.cache[key] = fn()
-    return p.cache[key]
+COLUMN_CACHE = 96
+"""Most candidate columns kept between evaluations (least recently used dropped): bounds memory
+at ~96 columns of n rows while the grids are revisited every round."""
+
+
+def _cached(p: Prepared, key: tuple, fn: Callable[[], Any]) -> Any:
+    from collections import OrderedDict
+
+    lru = p.cache.setdefault("columns", OrderedDict())
+    if key in lru:
+        lru.move_to_end(key)
+        return lru[key]
+    value = fn()
+    lru[key] = value
+    if len(lru) > COLUMN_CACHE:
+        for k in list(lru):
+            if k not in (("rrw_basis",), ("earth",)) and not (isinstance(k, tuple) and k and k[0] == "ref_spline"):
+                del lru[k]
+                break
+    return value
 
 
 def _temp_range(p: Prepared) -> float:
@@ -125,7 +144,7 @@ class ThermalLag(Candidate):
     def grid(self, p, axis, ctx):
         hi = min(3000.0, p.duration_s / 3)
         lo = max(10.0, 3.0 / p.fs)
-        return [{"tau_s": float(v)} for v in np.geomspace(lo, max(hi, 2 * lo), 16)]
+        return [{"tau_s": float(v)} for v in np.geomspace(lo, max(hi, 2 * lo), 11)]
 
     def build(self, p, axis, nl, ctx):
         return Built(relag={axis: float(nl["tau_s"])})
@@ -149,6 +168,7 @@ class WarmupTransient(Candidate):
     name = "warmup_transient"
     nonlinear = ("tau_s",)
     refine = (("tau_s", True),)
+    resolved = ("tau_s",)
 
     def missing(self, p):
         return [] if p.power_on is not None else ["power_on_s"]
@@ -191,7 +211,7 @@ class PressureBias(Candidate):
     def grid(self, p, axis, ctx):
         lp = np.log10(p.pressure)
         lo, hi = float(lp.min()), float(lp.max())
-        return [{"p0_torr": float(10 ** v)} for v in np.arange(math.floor(lo * 4) / 4, hi + 1e-9, 0.25)]
+        return [{"p0_torr": float(10 ** v)} for v in np.arange(math.floor(lo * 2) / 2, hi + 1e-9, 0.5)]
 
     def build(self, p, axis, nl, ctx):
         slope = float(nl.get("slope", 1.0))
@@ -249,7 +269,13 @@ class GearEccentricity(Candidate):
         return out
 
     def grid(self, p, axis, ctx):
-        spec = self.spectrum(p, axis, ctx.resid[axis])
+        r = ctx.resid[axis]
+        hit = p.cache.get(("gear_spectrum", axis))
+        if hit is not None and hit[0] is r:
+            spec = hit[1]
+        else:
+            spec = self.spectrum(p, axis, r)
+            p.cache[("gear_spectrum", axis)] = (r, spec)
         top = np.argsort(spec)[::-1][: self.SHORTLIST] + 1
         return [{"harmonic": int(N)} for N in top]
 
@@ -345,7 +371,7 @@ class Hysteresis(Candidate):
     name = "hysteresis"
     nonlinear = ("deadband_c",)
     refine = (("deadband_c", True),)
-    DEADBANDS = tuple(float(v) for v in np.geomspace(0.1, 3.0, 16))
+    DEADBANDS = tuple(float(v) for v in np.geomspace(0.1, 3.0, 11))
 
     def missing(self, p):
         return [] if p.temp is not None else ["temp_c"]
@@ -387,16 +413,20 @@ class TimeSkew(Candidate):
 
     def grid(self, p, axis, ctx):
         span = max(1.0, 2.0 / p.fs)
-        mags = np.geomspace(min(2e-3, 0.02 / p.fs), span, 28)
+        mags = np.geomspace(min(2e-3, 0.02 / p.fs), span, 14)
         return [{"delay_s": float(d)} for d in np.concatenate([-mags[::-1], mags])]
 
     def build(self, p, axis, nl, ctx):
+        from scipy.interpolate import CubicSpline
+
         d = nl["delay_s"]
         off = {}
+        tq = np.clip(p.t - d, p.t[0], p.t[-1])
         for a in p.axes:
             r = p.ref_axis(a)
             if np.ptp(r) > 0:
-                off[a] = fx.delayed(p.t, r, d) - r
+                spline = _cached(p, ("ref_spline", a), lambda: CubicSpline(p.t, r))  # as fx.delayed
+                off[a] = spline(tq) - r
         return Built(offsets=off)
 
     def params(self, p, axis, nl, coef):
@@ -421,15 +451,15 @@ class RateRandomWalk(Candidate):
         n_k = int(min(self.KNOTS, max(p.duration_s / max(p.blocks.length / p.fs, 1.0), 4)))
         return np.linspace(p.t[0], p.t[-1], n_k + 1)
 
-    def basis(self, p: Prepared) -> np.ndarray:
+    def basis(self, p: Prepared):
+        """The linear-spline basis over the knots (sparse: two non-zeros per row)."""
+        from bench.analysis.diagnose.cv import SparseHat
+
         def hats():
             kn = self.knots(p)
             j = np.clip(np.searchsorted(kn, p.t, side="right") - 1, 0, kn.size - 2)
             w = (p.t - kn[j]) / (kn[j + 1] - kn[j])
-            out = np.zeros((p.n, kn.size))
-            out[np.arange(p.n), j] = 1 - w
-            out[np.arange(p.n), j + 1] += w
-            return out
+            return SparseHat(j, 1.0 - w, w, kn.size)
         return _cached(p, ("rrw_basis",), hats)
 
     def build(self, p, axis, nl, ctx):
