@@ -12,7 +12,9 @@ rows only),
   inflation of the candidate model's held-out residual summed over blocks (1 for white noise;
   large when the candidate leaves correlated structure, so a term that only partly explains a
   structure earns little evidence);
-* it is material: the held-out RMS drops by at least :data:`GAIN_MIN` (relative).
+* it is material: the held-out RMS drops by at least :data:`GAIN_MIN` (relative), or, for a named
+  cause, the evidence is overwhelming (ΔIC < −:data:`IC_STRONG`) and the residual left is white
+  (φ ≤ :data:`PHI_WHITE`).
 
 The t statistic of the per-block improvements is reported as evidence but not required: effects
 confined to a part of the session (warm-up, rate ramps) improve few blocks.
@@ -40,7 +42,20 @@ IC_MIN = 10.0
 """Required drop of the cross-validated information criterion (log-likelihood units; 10 is
 "very strong" evidence on the Kass-Raftery scale)."""
 GAIN_MIN = 0.01
-"""Required relative drop of the held-out RMS (1 %): below it the baseline already explains the data."""
+"""Required relative drop of the held-out RMS (1 %): below it the baseline already explains the data
+(unless the evidence is overwhelming and complete, see :data:`IC_STRONG`)."""
+IC_STRONG = 100.0
+"""A named cause with ΔIC < −100 that leaves a white residual (φ ≤ :data:`PHI_WHITE`) is material
+even below :data:`GAIN_MIN`: a short transient (a one-minute warm-up in an hour at 10 Hz) moves the
+whole-session RMS by less than 1 % but is certain and explains its part of the data completely."""
+PHI_WHITE = 1.2
+
+
+def material(d_ic: float, gain: float, phi: float, named: bool = True) -> bool:
+    """The acceptance rule: enough evidence and a material gain (module docstring)."""
+    if not d_ic < -IC_MIN:
+        return False
+    return gain >= GAIN_MIN or (named and d_ic < -IC_STRONG and phi <= PHI_WHITE and gain > 0)
 MAX_TERMS = 8
 """Most terms added by the forward search."""
 T_REF_SCALE_C = 30.0
@@ -269,11 +284,11 @@ class Evaluation:
 
     @property
     def acceptable(self) -> bool:
-        return self.resolved and self.d_ic < -IC_MIN and self.gain >= GAIN_MIN
+        return self.resolved and material(self.d_ic, self.gain, self.phi, not self.cand.select_by_cv)
 
     @property
     def acceptable_raw(self) -> bool:
-        return self.resolved and self.d_ic_raw < -IC_MIN and self.gain >= GAIN_MIN
+        return self.resolved and material(self.d_ic_raw, self.gain, 1.0, False)
 
     def row(self) -> dict[str, Any]:
         return {"effect": self.cand.name, "axis": self.axis, "d_ic": self.d_ic, "t": self.t, "gain": self.gain,
@@ -537,7 +552,7 @@ def lookahead(p: Prepared, base_terms: list[Term], found: list[Term], state: Sta
         axes |= set(trial_found[-1].built.axes)
         df += e.df
         d_ic, gain, phi = compare(p, state, cur, sorted(axes, key=AXES.index), df)
-        if d_ic < -IC_MIN and gain >= GAIN_MIN and d_ic < (to_beat if best is None else best[0]):
+        if material(d_ic, gain, phi) and d_ic < (to_beat if best is None else best[0]):
             trial_found[-1].evidence.update({"d_ic": d_ic, "gain": gain, "phi": phi})
             best = (d_ic, [_copy(t) for t in trial_found], cur)
         if step + 1 < steps:
@@ -662,7 +677,7 @@ def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> S
                 polish(p, base_terms, others)
             reduced = build_state(p, base_terms + others)
             d_ic, gain, phi = compare(p, reduced, full, term.built.axes, term_df(term))
-            if not (d_ic < -IC_MIN and gain >= GAIN_MIN):
+            if not material(d_ic, gain, phi, not CANDIDATES[term.effect].select_by_cv):
                 dropped.append({"effect": term.effect, "axis": term.axis, "d_ic": d_ic, "gain": gain, "phi": phi,
                                 "nl": dict(term.nl)})
                 found = others
