@@ -5,8 +5,9 @@ Both sessions come from ``bench/sim/sessions.py`` (thermal cycle with continuous
 pump-down and vent, tilt changes, power-on at the start) with two hidden effects each, generated in
 the same run. The named baseline is the baseline fit alone (data preparation + blocked-CV fit of
 bias, cubic temperature bias and scale-factor/misalignment on every axis): ``ratio`` says how many
-baseline fits the whole diagnosis costs. Peak memory is the tracemalloc peak during the call
-(numpy buffers included) and the process's maximum resident set size.
+baseline fits the whole diagnosis costs. Wall time is the best of ``--repeat`` untraced runs; peak
+memory the tracemalloc peak of one further run (numpy buffers included) and the process's maximum
+resident set size. The machine may be shared: run it when idle for stable figures.
 
     python benchmarks/bench_diagnose.py [--repeat 1] [--json]
 """
@@ -45,16 +46,17 @@ def baseline_only(ds) -> None:
 
 
 def measure(fn, ds, repeat: int) -> tuple[float, float]:
-    """Best wall time (s) over ``repeat`` runs and the tracemalloc peak (MB) of the last."""
+    """Best wall time (s) over ``repeat`` untraced runs, then the tracemalloc peak (MB) of one more
+    run (tracing every allocation slows numpy down, so it is kept out of the timing)."""
     best = float("inf")
-    peak = 0.0
     for _ in range(repeat):
-        tracemalloc.start()
         t0 = time.perf_counter()
         fn(ds)
         best = min(best, time.perf_counter() - t0)
-        peak = tracemalloc.get_traced_memory()[1] / 1e6
-        tracemalloc.stop()
+    tracemalloc.start()
+    fn(ds)
+    peak = tracemalloc.get_traced_memory()[1] / 1e6
+    tracemalloc.stop()
     return best, peak
 
 

@@ -40,6 +40,13 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0) -> Diagn
     again. ``seed`` is accepted for interface stability; the method is deterministic.
     """
     del seed  # deterministic: blocked folds, grids, no random draws
+    from bench.analysis.diagnose.blas import single_thread
+
+    with single_thread():
+        return _diagnose(ds, model_path)
+
+
+def _diagnose(ds: Dataset, model_path: str | None) -> DiagnoseResult:
     p = prepare(ds)
     raw, spec_effects, model_terms = None, [], []
     if model_path is not None:
@@ -214,6 +221,8 @@ def _fitted_baseline(p: Prepared, s: Search) -> dict[str, Any]:
 
 def write_report(result: DiagnoseResult, ds: Dataset, path: str | Path) -> Path:
     """Write the HTML report (residuals before/after, spectra, evidence per finding) to ``path``."""
+    from bench.analysis.diagnose.blas import single_thread
     from bench.analysis.diagnose.report import write_report as _write
 
-    return _write(result, ds, path)
+    with single_thread():
+        return _write(result, ds, path)

@@ -4,7 +4,6 @@ correlations, Allan deviations, the evidence for each finding and the candidate 
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -46,8 +45,8 @@ def _binned(x: np.ndarray, y: np.ndarray, bins: int = 40) -> tuple[np.ndarray, n
     return 0.5 * (edges[:-1] + edges[1:])[ok], s[ok] / cnt[ok]
 
 
-def _evidence_axis(p: Prepared, effect: str, axis: str, nl: dict[str, Any]) -> tuple[str, np.ndarray, np.ndarray | None]:
-    """(label, x, mask) of the covariate that shows a finding best."""
+def _evidence_axis(p: Prepared, effect: str, axis: str, nl: dict[str, Any]) -> tuple[str, np.ndarray, None]:
+    """(label, x, None) of the covariate that shows a finding best."""
     if effect == "warmup_transient" and p.power_on is not None:
         return "time since power-on (s)", p.power_on, None
     if effect == "pressure_bias" and p.pressure is not None:
@@ -246,7 +245,3 @@ def _fmt_params(params: dict[str, Any]) -> str:
         else:
             out.append(f"{k}={v}")
     return ", ".join(out)
-
-
-def _finite(v: float) -> bool:
-    return isinstance(v, float) and math.isfinite(v)
