@@ -202,7 +202,9 @@ def dataset_from_run(path: str | Path) -> Dataset:
             ref[sel] = np.outer(rate[sel], mount_matrix(up)[:, 2])
         for k, a in enumerate(AXES):
             cols[REF_RATE[a]] = ref[:, k]
-        cols["table_angle_deg"] = _interp(t, tm, _column(p, mon, "rate_table/monitor", "angle"))
+        # unwrapped before interpolating: a sample between 359.9 and 0.1 deg is near 0, not 180
+        angle = np.degrees(np.unwrap(np.radians(_column(p, mon, "rate_table/monitor", "angle"))))
+        cols["table_angle_deg"] = _interp(t, tm, angle) % 360.0
     if "tvac/monitor" in streams and t.size:
         mon = read_stream(p, "tvac/monitor")
         tm = _column(p, mon, "tvac/monitor", "time")
