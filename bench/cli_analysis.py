@@ -7,7 +7,6 @@ run file or a measured-data CSV) and calls into ``bench/analysis`` or ``bench/re
 from __future__ import annotations
 
 import argparse
-import hashlib
 import importlib
 import json
 from datetime import datetime, timezone
@@ -77,6 +76,7 @@ def _print_tables(console: Console, tables) -> None:
 
 def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
     from bench.analysis.dataset import load_dataset
+    from bench.replay.recording import file_sha256
 
     _refuse_existing(args.output, "calibration file")
     module_name, func_name = METHODS[args.method]
@@ -108,7 +108,7 @@ def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
             "method": args.method,
             "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "software_version": __version__,
-            "source": {"path": str(args.data), "sha256": _sha256(args.data)},
+            "source": {"path": str(args.data), "sha256": file_sha256(args.data)},
             **result.calibration,
         }
         _write_new(args.output, yaml.safe_dump(_plain_tree(doc), sort_keys=False))
@@ -161,14 +161,6 @@ def _write_new(path: Path, text: str) -> None:
         raise InputError(f"{path} exists; it is never overwritten", None, "-o") from None
     except OSError as exc:
         raise InputError(f"cannot write {path}: {exc.strerror or exc}", None, "-o") from None
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _plain(v: Any) -> Any:

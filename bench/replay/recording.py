@@ -113,7 +113,7 @@ def load_recording(path: Path) -> Recording:
                 continue
     end = max((e.t_s for e in summary.events), default=0.0)
     return Recording(
-        path=path, summary=summary, sha256=_sha256(path), mode=str(summary.attrs.get("mode", "")), status=summary.status,
+        path=path, summary=summary, sha256=file_sha256(path), mode=str(summary.attrs.get("mode", "")), status=summary.status,
         parameters=dict(info.get("parameters") or {}), sources=dict(info.get("sources") or {}), answers=answers,
         prelude_recorded=any(e.kind == "lab_open" for e in summary.events), end_t_s=end,
         clock=str(info.get("clock") or ("wall" if summary.attrs.get("mode") == "hardware" else "virtual")),
@@ -142,7 +142,8 @@ def _check_version(path: Path) -> None:
                          f"replay it with the bench version that recorded it, or record it again")
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes (read in 1 MiB blocks)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
