@@ -50,10 +50,12 @@ def _is_number(v: Any) -> bool:
 
 
 class _Kind:
-    """How to check one value: ``check`` returns the plain value or ``_BAD`` (after recording)."""
+    """How to check one value: ``check`` returns the plain value or ``_BAD`` (after recording).
+    The base kind accepts any value: it marks a known field validated elsewhere (``effects``,
+    ``packages``); the subclasses check."""
 
-    def check(self, node: Node, name: str, errors: list[InputError]) -> Any:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def check(self, node: Node, name: str, errors: list[InputError]) -> Any:
+        return node.plain()
 
 
 @dataclass

@@ -296,6 +296,20 @@ class Evaluation:
                 "acceptable": self.acceptable, "nl": dict(self.nl_full)}
 
 
+
+def _candidate_columns(built, a: str):
+    """The candidate's columns ``Z`` and offset ``o`` on axis ``a``, with ``Z`` column-scaled
+    (``Zs``) and its penalty scaled to match (``Pz``); None where absent."""
+    Z = built.cols.get(a)
+    o = built.offsets.get(a)
+    Zs, Pz = None, None
+    if Z is not None:
+        s = _col_scale(Z)
+        Zs = _scaled(Z, s)
+        pz = built.penalty.get(a)
+        Pz = None if pz is None else pz / np.outer(s, s)
+    return Z, o, Zs, Pz
+
 def _fit_candidate(p: Prepared, state: State, built: Built, cache: dict | None = None) -> dict[str, CVFit]:
     """Blocked CV of ``state`` + ``built`` on the axes ``built`` touches. ``cache`` reuses the
     augmented Grams when a grid only changes the penalty (same column array)."""
@@ -305,14 +319,7 @@ def _fit_candidate(p: Prepared, state: State, built: Built, cache: dict | None =
             fits[a] = axis_state(p, a, state.terms + [Term("thermal_lag", a, {}, built)]).fit
             continue
         st = state.axes[a]
-        Z = built.cols.get(a)
-        o = built.offsets.get(a)
-        Zs, Pz = None, None
-        if Z is not None:
-            s = _col_scale(Z)
-            Zs = _scaled(Z, s)
-            pz = built.penalty.get(a)
-            Pz = None if pz is None else pz / np.outer(s, s)
+        Z, o, Zs, Pz = _candidate_columns(built, a)
         key = (a, id(Z), id(o))
         if cache is not None and key in cache and cache[key][0] is Z and cache[key][1] is o:
             A = cache[key][2]
@@ -463,14 +470,7 @@ def _full_sse(p: Prepared, state: State, built: Built, w: dict[str, float]) -> f
             total += w[a] * axis_state(p, a, state.terms + [Term("thermal_lag", a, {}, built)]).fit.sse_full
             continue
         st = state.axes[a]
-        Z = built.cols.get(a)
-        o = built.offsets.get(a)
-        Zs, Pz = None, None
-        if Z is not None:
-            s = _col_scale(Z)
-            Zs = _scaled(Z, s)
-            pz = built.penalty.get(a)
-            Pz = None if pz is None else pz / np.outer(s, s)
+        Z, o, Zs, Pz = _candidate_columns(built, a)
         A1 = st.A.sum(axis=0, keepdims=True)
         A = augment(A1, st.X[None], st.y[None, :, None], one, Zs, None if o is None else st.y - o)[0]
         m = A.shape[0] - 1

@@ -9,6 +9,7 @@ parameters (deg/s, deg/s per °C^k, fraction, deg/s/g) when the columns are unsc
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -48,7 +49,7 @@ class Context:
     sigma2: dict[str, float]
 
 
-class Candidate:
+class Candidate(ABC):
     """Base class of a vocabulary term as a candidate cause."""
 
     name: str = ""
@@ -78,12 +79,13 @@ class Candidate:
     def grid(self, p: Prepared, axis: str, ctx: Context) -> list[dict[str, Any]]:
         return [{}]
 
+    @abstractmethod
     def build(self, p: Prepared, axis: str, nl: dict[str, Any], ctx: Context) -> Built:
-        raise NotImplementedError
+        """The term's design columns on ``axis`` for nonlinear values ``nl``."""
 
+    @abstractmethod
     def params(self, p: Prepared, axis: str, nl: dict[str, Any], coef: dict[str, np.ndarray]) -> dict[str, Any]:
         """Physical parameters (the effect's ``params``) from nonlinear values and raw coefficients."""
-        raise NotImplementedError
 
     def describe(self, params: dict[str, Any]) -> str:
         """A short phrase for the summary line."""
