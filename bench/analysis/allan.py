@@ -1,5 +1,6 @@
-"""Overlapping Allan deviation of a gyro rate series, its confidence intervals and the IEEE Std 952
-noise-term fit (NPSAT1 thesis section IV.G.3; IEEE Std 952-1997 Annex C).
+"""Overlapping Allan deviation of a gyro rate series, its confidence intervals, the IEEE Std 952
+noise terms read off the curve, and the four-term model fit (NPSAT1 thesis section IV.G.3; IEEE Std
+952-1997 Annex C).
 
 Definitions (rate Ω in deg/s, ``n`` samples at f_s Hz, τ₀ = 1/f_s, τ = m·τ₀):
 
@@ -15,10 +16,19 @@ Definitions (rate Ω in deg/s, ``n`` samples at f_s Hz, τ₀ = 1/f_s, τ = m·�
 * confidence intervals: chi-squared with equivalent degrees of freedom (NIST SP 1065 Eq. 45:
   edf·σ̂²/χ²_{p}(edf)), the edf from the simple noise-type formulas of NIST SP 1065 Table 5
   (Howe, Allan and Barnes 1981; Riley's handbook) for white PM (α = +2), flicker PM (+1), white FM
-  (0), flicker FM (−1) and random-walk FM (−2). White FM (angle random walk) is the default; the
-  noise calibration passes the type that dominates the fitted model at each τ.
+  (0), flicker FM (−1) and random-walk FM (−2); flicker FM at m = 1 with the square of SP 1065
+  (2(N−2)²/(2.3N−4.9); allantools 2024.6 drops it). White FM (angle random walk) is the default;
+  the read-out passes the type the local slope shows at each τ.
 
-The noise-term model fitted by :func:`fit_noise_terms` (IEEE Std 952 Eq. C.6 ff.):
+The read-out (:func:`read_noise_terms`, used by ``bench calibrate noise``) reads quantization (slope
+−1), angle random walk (−½), bias instability (0), rate random walk (+½) and rate ramp (+1) off the
+measured curve the way IEEE Std 952 Annex C and NPSAT1 IV.G.3 do: each from the τ range where the
+curve has that term's slope, with the range, the interval and the clusters; a term whose slope is
+absent, or whose line would lie above the curve, is not reported (with the reason). Method in
+``docs/noise.md``.
+
+The noise-term model fitted by :func:`fit_noise_terms` (IEEE Std 952 Eq. C.6 ff.; no longer used for
+the read-outs: on real data it puts all weight on one or two terms and reports the others as 0):
 
     σ²(τ) = 3Q²/τ² + N²/τ + (2 ln 2/π)·B² + K²·τ/3
 
@@ -33,6 +43,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import optimize, stats
@@ -52,8 +63,9 @@ BLOCK = 1 << 13
 FLICKER_FLOOR = math.sqrt(2 * math.log(2) / math.pi)
 """σ(τ)/B on the flicker (bias instability) plateau: 0.6643 (IEEE Std 952 Eq. C.14)."""
 
-ALPHA = {"quantization": 2, "arw": 0, "bias_instability": -1, "rrw": -2}
-"""Power-law exponent α (S_y ∝ f^α) of each noise term, for the edf formulas."""
+ALPHA = {"quantization": 2, "arw": 0, "bias_instability": -1, "rrw": -2, "rate_ramp": -2}
+"""Power-law exponent α (S_y ∝ f^α) of each noise term, for the edf formulas (a rate ramp is not a
+power-law noise; its points get the random-walk FM edf, the smallest)."""
 
 TERMS = ("quantization", "arw", "bias_instability", "rrw")
 
@@ -93,6 +105,12 @@ class AllanResult:
         lo, hi = chi2_interval(self.adev, edf, self.confidence)
         return AllanResult(self.taus_s, self.m, self.adev, self.n_terms, edf, lo, hi, alpha_arr,
                            self.confidence, self.n_samples, self.sample_rate_hz)
+
+    def subset(self, index: np.ndarray | Sequence[int]) -> "AllanResult":
+        """The points at ``index`` (integer positions or a boolean mask)."""
+        k = np.asarray(index)
+        return AllanResult(self.taus_s[k], self.m[k], self.adev[k], self.n_terms[k], self.edf[k], self.adev_lo[k],
+                           self.adev_hi[k], self.alpha[k], self.confidence, self.n_samples, self.sample_rate_hz)
 
 
 def octave_m(n_samples: int, stop_ratio: int = STOP_RATIO) -> np.ndarray:
@@ -137,18 +155,7 @@ def overlapping_adev(
             raise InputError(f"rate sample {i} is {y[i]!r}: Allan deviation needs finite values")
         total = float(np.sum(y / n)) * n  # finite values whose sum overflows
 
-    if taus is None:
-        m = octave_m(n)
-    else:
-        t = np.atleast_1d(np.asarray(taus, dtype=np.float64))
-        if not np.all(np.isfinite(t)):
-            raise InputError("averaging times must be finite numbers of seconds")
-        m = np.round(t * float(fs))
-        m = np.unique(m[(m >= 1) & (m < n / 2)]).astype(np.int64)  # n + 1 - 2m >= 2
-        if m.size == 0:
-            raise InputError(f"no usable averaging time in {list(t)} s for {n} samples at {fs:g} Hz "
-                             f"(τ must lie between {1 / fs:g} s and {(n - 1) / 2 / fs:g} s)")
-
+    m = select_m(n, fs, taus)
     x = _phase_samples(y, total / n)  # Σ(Ω − Ω̄) in units of rate·τ₀ (the 1/f_s factor is applied at the end)
     sums = _second_difference_sums(x, m)
     n_terms = (n + 1 - 2 * m).astype(np.int64)
@@ -157,6 +164,23 @@ def overlapping_adev(
     edf = edf_simple(n + 1, m, alpha_arr)
     lo, hi = chi2_interval(adev, edf, confidence)
     return AllanResult(m / float(fs), m, adev, n_terms, edf, lo, hi, alpha_arr, float(confidence), n, float(fs))
+
+
+def select_m(n: int, fs: float, taus: np.ndarray | Sequence[float] | None = None) -> np.ndarray:
+    """Averaging factors for ``taus`` (s) as :func:`overlapping_adev` uses them: each rounded to
+    m = round(τ·f_s), duplicates merged, m < 1 and m ≥ n/2 dropped; octaves (:func:`octave_m`) when
+    ``taus`` is ``None``. Raises :class:`InputError` when none is usable."""
+    if taus is None:
+        return octave_m(n)
+    t = np.atleast_1d(np.asarray(taus, dtype=np.float64))
+    if not np.all(np.isfinite(t)):
+        raise InputError("averaging times must be finite numbers of seconds")
+    m = np.round(t * float(fs))
+    m = np.unique(m[(m >= 1) & (m < n / 2)]).astype(np.int64)  # n + 1 - 2m >= 2
+    if m.size == 0:
+        raise InputError(f"no usable averaging time in {list(t)} s for {n} samples at {fs:g} Hz "
+                         f"(τ must lie between {1 / fs:g} s and {(n - 1) / 2 / fs:g} s)")
+    return m
 
 
 def _phase_samples(y: np.ndarray, mean: float | None = None) -> np.ndarray:
@@ -224,7 +248,7 @@ def edf_simple(n_phase: int, m: np.ndarray | int, alpha: np.ndarray | int) -> np
         elif a == 0:
             e = (3 * (big_n - 1) / (2 * mm) - 2 * (big_n - 2) / big_n) * 4 * mm * mm / (4 * mm * mm + 5)
         elif a == -1:
-            e = 2 * (big_n - 2) / (2.3 * big_n - 4.9) if mm == 1 else 5 * big_n ** 2 / (4 * mm * (big_n + 3 * mm))
+            e = 2 * (big_n - 2) ** 2 / (2.3 * big_n - 4.9) if mm == 1 else 5 * big_n ** 2 / (4 * mm * (big_n + 3 * mm))
         elif a == -2:
             e = (big_n - 2) / (mm * (big_n - 3) ** 2) * ((big_n - 1) ** 2 - 3 * mm * (big_n - 1) + 4 * mm * mm)
         else:
@@ -334,3 +358,585 @@ def _terms(coef: np.ndarray, taus: np.ndarray) -> NoiseTerms:
     winners = set(np.argmax(share, axis=1)[share.sum(axis=1) > 0].tolist())
     dominant = {t: bool(i in winners and share[:, i].max() > 0) for i, t in enumerate(TERMS)}
     return NoiseTerms(math.sqrt(q2), math.sqrt(n2), math.sqrt(b2), math.sqrt(k2), dominant)
+
+
+# ---- read-out by the book (IEEE Std 952 Annex C, NPSAT1 IV.G.3) ---------------------------------
+READ_TERMS = ("quantization", "arw", "bias_instability", "rrw", "rate_ramp")
+"""The terms read off the measured curve, by slope (−1, −½, 0, +½, +1)."""
+
+SLOPE = {"quantization": -1.0, "arw": -0.5, "bias_instability": 0.0, "rrw": 0.5, "rate_ramp": 1.0}
+"""Slope of each term's line σ = C·g(τ) on the log-log Allan deviation plot (IEEE Std 952 Fig. C.2)."""
+
+UNITS = {"quantization": ("deg", 1.0), "arw": ("deg/√h", 60.0), "bias_instability": ("deg/h", 3600.0),
+         "rrw": ("deg/h/√h", 3600.0 ** 1.5), "rate_ramp": ("deg/h/h", 3600.0 ** 2)}
+"""Customary unit of each coefficient and the factor from the bench unit (Q deg, N deg/√s, B deg/s,
+K deg/s/√s, R deg/s²)."""
+
+NAMES = {"quantization": "quantization", "arw": "angle random walk", "bias_instability": "bias instability",
+         "rrw": "rate random walk", "rate_ramp": "rate ramp"}
+
+SLOPE_TEXT = {-1.0: "−1", -0.5: "−½", 0.0: "0", 0.5: "+½", 1.0: "+1"}
+
+PER_OCTAVE = 4
+"""Averaging times per octave of the analysis grid the read-outs use (whatever τ are displayed)."""
+
+SLOPE_TOL = 0.15
+"""A local slope within this of a sloped term's slope counts as that slope even when its statistical
+uncertainty is smaller (the term holds ≥ 70 % of the Allan variance there when one neighbouring
+term adds to it). Where two terms a slope unit apart meet (−1 and 0, −½ and +1, …) the slope passes
+the middle term's within ±0.15 over less than an octave, so no middle term is invented."""
+
+FLAT_TOL = 0.125
+"""The same for the flat (bias instability) slope: tighter, because the V where −½ meets +½ passes
+through 0 within ±0.125 over 1.7 × in τ (±0.15: 1.9 ×), just under the octave a region needs."""
+
+SLOPE_Z = 2.0
+"""Coverage factor of the slope tests: consistent within SLOPE_Z standard uncertainties (≈ 95 %)."""
+
+MIN_SHARE = 0.5
+"""A term is read only where its line holds at least this share of the measured Allan variance."""
+
+ARW_TAU_S = 1.0
+"""The −½ line is read at τ = 1 s (NPSAT1 Table 13, IEEE Std 952: N = σ(1 s))."""
+
+MIN_RUN_RATIO = 2.0 * (1 - 1e-9)
+"""A term is resolved only where its slope holds (and is told apart from the neighbouring terms')
+over at least an octave of τ: IEEE 952 reads straight-line segments, and shorter excursions of the
+local slope are mostly scatter."""
+
+CHECK_Z = 3.0
+"""A term's line contradicts the curve where it lies above the curve's upper bound at this many
+standard deviations (99.7 %): with tens of τ points a 1σ or 2σ band is crossed somewhere by chance."""
+
+
+def term_factor(term: str, taus_s: np.ndarray | float) -> np.ndarray:
+    """g(τ) with σ(τ) = C·g(τ) for a term's coefficient C in bench units: √3/τ (Q), 1/√τ (N), 0.664
+    (B), √(τ/3) (K), τ/√2 (R, NPSAT1 Eq. 23)."""
+    t = np.asarray(taus_s, dtype=np.float64)
+    if term == "quantization":
+        return math.sqrt(3.0) / t
+    if term == "arw":
+        return 1.0 / np.sqrt(t)
+    if term == "bias_instability":
+        return np.full_like(t, FLICKER_FLOOR)
+    if term == "rrw":
+        return np.sqrt(t / 3.0)
+    if term == "rate_ramp":
+        return t / math.sqrt(2.0)
+    raise ValueError(f"unknown noise term {term!r}")
+
+
+def analysis_m(n_samples: int, fs: float, extra_m: np.ndarray | Sequence[int] = (), per_octave: int = PER_OCTAVE,
+               stop_ratio: int = STOP_RATIO) -> np.ndarray:
+    """Averaging factors of the analysis grid: ``per_octave`` per octave from 1 to n/``stop_ratio``,
+    the m of τ = 1 s, and ``extra_m`` (e.g. the displayed τ), each usable (1 ≤ m < n/2)."""
+    top = max(1, n_samples // stop_ratio)
+    k = np.arange(int(math.floor(per_octave * math.log2(top) + 1e-9)) + 1)
+    m = np.round(2.0 ** (k / per_octave))
+    one = round(ARW_TAU_S * fs)
+    parts = [m, np.asarray(list(extra_m), dtype=np.float64)]
+    if 1 <= one <= top:
+        parts.append(np.array([float(one)]))
+    allm = np.unique(np.concatenate(parts))
+    return allm[(allm >= 1) & (allm < n_samples / 2)].astype(np.int64)
+
+
+SLOPE_RHO = 0.5
+"""Correlation assumed between ln σ̂ at the two ends of an octave (overlapping estimates share data).
+Monte Carlo (white, flicker and random-walk FM, 10⁵ samples, 150 runs) puts the true scatter of the
+local slope 1.3-4 times below the independent-ends value; ρ = 0.5 divides it by ≈ 1.4, which stays
+at or above the true scatter at every τ."""
+
+
+def local_slopes(result: AllanResult) -> tuple[np.ndarray, np.ndarray]:
+    """Local slope d ln σ / d ln τ at each τ over one octave (τ/√2 … τ·√2, one-sided at the ends)
+    and its standard uncertainty, from the relative scatter 1/√(2·edf) of the two end points
+    (correlation :data:`SLOPE_RHO`). NaN where the grid has fewer than two points or σ is 0."""
+    lt = np.log(result.taus_s)
+    size = lt.size
+    mu = np.full(size, np.nan)
+    u = np.full(size, np.nan)
+    if size < 2 or not np.all(result.adev > 0):
+        return mu, u
+    ls = np.log(result.adev)
+    var = 1.0 / (2.0 * result.edf)
+    half, eps = math.log(2.0) / 2.0, 1e-9
+    for i in range(size):
+        a = int(np.searchsorted(lt, lt[i] - half - eps))
+        b = int(np.searchsorted(lt, lt[i] + half + eps, side="right")) - 1
+        if lt[b] - lt[a] < 2 * half * 0.99:
+            if a == 0:
+                b = max(b, int(np.searchsorted(lt, lt[0] + 2 * half + eps, side="right")) - 1)
+            if b == size - 1:
+                a = min(a, int(np.searchsorted(lt, lt[-1] - 2 * half - eps)))
+        if b <= a:
+            a, b = max(i - 1, 0), min(i + 1, size - 1)
+        d = lt[b] - lt[a]
+        mu[i] = (ls[b] - ls[a]) / d
+        u[i] = math.sqrt(max(var[a] + var[b] - 2 * SLOPE_RHO * math.sqrt(var[a] * var[b]), 0.0)) / d
+    return mu, u
+
+
+@dataclass
+class TermReading:
+    """One term read off the Allan deviation curve (coefficient in bench units: Q deg, N deg/√s,
+    B deg/s, K deg/s/√s, R deg/s²).
+
+    ``value``: ``None`` when the term is not reported; ``reason`` then says why and ``upper_bound`` is
+    the largest coefficient the curve allows (under its upper confidence band; for B the minimum / 0.664).
+    ``tau_s``: the read point; ``tau_range_s``: where the term's line lies within the curve's 2σ band
+    and holds at least half of its variance (the line *is* the curve there); ``ci``: the interval of
+    the reading from the curve's interval at the read point; ``n_terms`` overlapping and
+    ``clusters`` independent (⌊n/m⌋) clusters at the read point; ``slope``/``slope_u``: the local
+    slope there and its standard uncertainty; ``slope_range_s``: where the curve has the term's slope
+    (resolved runs; for B read at the minimum, where the slope is consistent with 0);
+    ``estimate_only``: B read at a minimum that is no resolved floor (NPSAT1's "estimate only": an
+    upper bound). ``how``: for B ``"flat region"``, ``"minimum"``, ``"minimum, no flat region"`` (a V)
+    or ``"minimum, floor not resolved"``; for ARW ``"1 s"`` (the lowest −½ line touching the curve at
+    τ ≥ 1 s, NPSAT1), ``"slope region with 1 s"`` (1 s lies on a −½ stretch: the line read there
+    where best determined) or ``"slope region"`` (read on a −½ stretch away from 1 s).
+    ``alternative`` (ARW read at 1 s where the slope is not −½): the reading on the −½ stretch
+    (value, ci, tau_s, tau_range_s, slope, slope_u, slope_range_s). ``at_slope``: the local slope at
+    the read point is consistent with the term's; ``evidenced``: the read point lies in a stretch
+    where the term's slope is resolved; ``seen``: such a stretch exists."""
+
+    term: str
+    value: float | None = None
+    reason: str | None = None
+    tau_s: float | None = None
+    tau_range_s: tuple[float, float] | None = None
+    ci: tuple[float, float] | None = None
+    n_terms: int | None = None
+    clusters: int | None = None
+    slope: float | None = None
+    slope_u: float | None = None
+    slope_range_s: tuple[float, float] | None = None
+    estimate_only: bool = False
+    upper_bound: float | None = None
+    alternative: dict[str, Any] | None = None
+    at_slope: bool = True
+    evidenced: bool = False
+    seen: bool = False
+    how: str = ""
+
+    @property
+    def resolved(self) -> bool:
+        """Reported, not an estimate only, and the curve shows the term's slope somewhere (``seen``:
+        a run of τ at least an octave long where that slope is told apart from the neighbours')."""
+        return self.value is not None and not self.estimate_only and self.seen
+
+    @property
+    def subtracted(self) -> bool:
+        """Reported and read inside the term's own resolved slope region (``evidenced``): its variance
+        is taken off when the other terms are read."""
+        return self.value is not None and not self.estimate_only and self.evidenced
+
+    def customary(self, v: float | None) -> float | None:
+        return None if v is None else v * UNITS[self.term][1]
+
+
+@dataclass
+class NoiseReadout:
+    """The analysis-grid Allan deviation (with confidence intervals for the noise type the local
+    slope shows), its local slopes and uncertainties, and the readings of :data:`READ_TERMS`."""
+
+    allan: AllanResult
+    slope: np.ndarray
+    slope_u: np.ndarray
+    readings: dict[str, TermReading]
+    z: float = SLOPE_Z
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.3g}"
+
+
+def _range_text(lo: float, hi: float) -> str:
+    return f"τ = {_fmt(lo)} s" if math.isclose(lo, hi) else f"τ = {_fmt(lo)}-{_fmt(hi)} s"
+
+
+class _Reader:
+    """The graphical read-out of one curve (see :func:`read_noise_terms`)."""
+
+    def __init__(self, allan: AllanResult, z: float, arw_tau_s: float):
+        self.z, self.arw_tau_s = z, arw_tau_s
+        self.why = ""
+        self.no_flat = False
+        self.allan = allan.with_alpha(0)
+        self.taus = self.allan.taus_s
+        self.size = self.taus.size
+        for _ in range(3):  # slopes -> noise type per τ -> edf -> slope uncertainties -> ...
+            self.mu, self.u = local_slopes(self.allan)
+            self._classify()
+            alpha = self._alpha()
+            if np.array_equal(alpha, self.allan.alpha):
+                break
+            self.allan = self.allan.with_alpha(alpha)
+        self.mu, self.u = local_slopes(self.allan)
+        self._classify()
+        p = math.erf(CHECK_Z / math.sqrt(2.0))
+        self.check_hi = chi2_interval(self.allan.adev, self.allan.edf, p)[1]
+
+    def _classify(self) -> None:
+        """Per term and τ: ``consistent`` (the local slope is within SLOPE_TOL (FLAT_TOL for the bias
+        instability) or z uncertainties of the term's slope) and ``resolved`` (the term's slope is the
+        nearest to the local slope, and the neighbouring terms' slopes are more than z uncertainties
+        away, over at least an octave). A resolved stretch can be a transition where two terms meet
+        (the V of −½ and +½ looks flat); the read-out takes the neighbours' variance off and checks
+        the terms together against the curve, which tells the two apart."""
+        slopes = np.array([SLOPE[t] for t in READ_TERMS])
+        nearest = np.argmin(np.abs(np.nan_to_num(self.mu, nan=9.0)[:, None] - slopes[None, :]), axis=1)
+        self.consistent: dict[str, np.ndarray] = {}
+        self.resolved: dict[str, np.ndarray] = {}
+        for j, t in enumerate(READ_TERMS):
+            s = SLOPE[t]
+            fixed = FLAT_TOL if t == "bias_instability" else SLOPE_TOL
+            self.consistent[t] = np.abs(self.mu - s) <= np.maximum(fixed, self.z * self.u)
+            res = (nearest == j) & np.isfinite(self.mu)
+            for t2 in READ_TERMS:
+                if abs(SLOPE[t2] - s) == 0.5:
+                    res &= np.abs(self.mu - SLOPE[t2]) > self.z * self.u
+            for lo, hi in _true_runs(res):  # a slope seen over less than an octave is a wiggle, not a term
+                if self.taus[hi] / self.taus[lo] < MIN_RUN_RATIO:
+                    res[lo:hi + 1] = False
+            self.resolved[t] = res
+
+    def _alpha(self) -> np.ndarray:
+        """Noise type for the edf at each τ: that of the term resolved there; elsewhere that of the
+        term whose slope is nearest the local slope, white PM excepted (its edf, ≈ n/2 at every τ, is
+        taken only where quantization is resolved)."""
+        out = np.zeros(self.size, dtype=int)
+        names = [t for t in READ_TERMS if t != "quantization"]
+        slopes = np.array([SLOPE[t] for t in names])
+        for i in range(self.size):
+            res = [t for t in READ_TERMS if self.resolved[t][i]]
+            if res:
+                out[i] = ALPHA[res[0]]
+            elif math.isfinite(self.mu[i]):
+                out[i] = ALPHA[names[int(np.argmin(np.abs(self.mu[i] - slopes)))]]
+        return out
+
+    # -- helpers --
+    def runs(self, term: str) -> list[tuple[int, int]]:
+        """The term's slope regions: the runs of τ where it is resolved."""
+        return _true_runs(self.resolved[term])
+
+    def slope_text(self, i: int) -> str:
+        return f"{self.mu[i]:+.2f} ± {self.u[i]:.2f}" if self.u[i] >= 0.01 else f"{self.mu[i]:+.3f} ± {self.u[i]:.1g}"
+
+    def upper_bound(self, term: str, idx: np.ndarray | None = None) -> float:
+        k = np.arange(self.size) if idx is None else idx
+        return float(np.min(self.allan.adev_hi[k] / term_factor(term, self.taus[k])))
+
+    def fill(self, r: TermReading, i: int) -> None:
+        r.tau_s = float(self.taus[i])
+        r.n_terms = int(self.allan.n_terms[i])
+        r.clusters = int(self.allan.n_samples // self.allan.m[i])
+        r.slope = float(self.mu[i])
+        r.slope_u = float(self.u[i])
+        r.at_slope = bool(self.consistent[r.term][i])
+        r.evidenced = bool(self.resolved[r.term][i])
+        r.seen = bool(self.resolved[r.term].any())
+
+    def tangent(self, term: str, idx: np.ndarray, others: np.ndarray, need_slope: bool = True) -> dict[str, Any] | None:
+        """The term's line read over candidate points ``idx`` with the other terms' Allan variance
+        ``others`` subtracted. At each point the coefficient c = √(σ² − others)/g(τ); a point can be
+        the read point when the term holds ≥ MIN_SHARE of the variance there and its line c·g(τ) stays
+        under the curve (its upper band at CHECK_Z) at every candidate point, i.e. the line touches the
+        curve from below there (IEEE 952 graphical reading), and (``need_slope``) the local slope
+        there is consistent with the term's. Of those, the one whose c has the smallest relative
+        uncertainty is read. The range is where that line lies within the curve's
+        band at z standard deviations (contiguous around the read point)."""
+        al = self.allan
+        g = term_factor(term, self.taus[idx])
+        s2 = al.adev[idx] ** 2 - others[idx]
+        c = np.sqrt(np.clip(s2, 0.0, None)) / g
+        chi = np.sqrt(np.clip(al.adev_hi[idx] ** 2 - others[idx], 0.0, None)) / g
+        clo = np.sqrt(np.clip(al.adev_lo[idx] ** 2 - others[idx], 0.0, None)) / g
+        top = float(np.min(self.check_hi[idx] / g))
+        share = np.clip(s2, 0.0, None) / al.adev[idx] ** 2
+        big = (share >= MIN_SHARE) & (c > 0)
+        span = _range_text(self.taus[idx[0]], self.taus[idx[-1]])
+        s = SLOPE_TEXT[SLOPE[term]]
+        if not big.any():
+            self.why = f"at {span} the {s} line would hold less than half of the variance once the other terms are taken off"
+            return None
+        ok = big & (c <= top * (1 + 1e-12))
+        if need_slope:
+            ok &= self.consistent[term][idx]
+        if not ok.any():
+            self.why = (f"no {s} line touches the curve from below at {span} where the curve's slope is {s} "
+                        "(it bends away first)")
+            return None
+        with np.errstate(divide="ignore"):
+            rel = np.where(s2 > 0, al.adev[idx] ** 2 * np.sqrt(2.0 / al.edf[idx]) / (2.0 * s2), np.inf)
+        pos = np.flatnonzero(ok)
+        k = int(pos[np.argmin(rel[pos])])
+        lo_z, hi_z = chi2_interval(al.adev[idx], al.edf[idx], math.erf(self.z / math.sqrt(2.0)))
+        zlo = np.sqrt(np.clip(lo_z ** 2 - others[idx], 0.0, None)) / g
+        zhi = np.sqrt(np.clip(hi_z ** 2 - others[idx], 0.0, None)) / g
+        inside = (zlo <= c[k] * (1 + 1e-12)) & (c[k] <= zhi * (1 + 1e-12)) & (share >= MIN_SHARE)
+        a = b = k
+        while a - 1 >= 0 and inside[a - 1]:
+            a -= 1
+        while b + 1 < idx.size and inside[b + 1]:
+            b += 1
+        return {"i": int(idx[k]), "value": float(c[k]), "ci": (float(clo[k]), float(chi[k])),
+                "range": (float(self.taus[idx[a]]), float(self.taus[idx[b]])), "rel": float(rel[k])}
+
+    def contradiction(self, term: str, value: float, tau_from: float | None) -> float | None:
+        """The first τ (≥ ``tau_from``; anywhere when ``None``) where the term's own line exceeds the
+        curve's upper confidence bound (at CHECK_Z standard deviations: the curve has many τ, and a
+        1σ band is crossed somewhere by chance), or ``None``."""
+        line = value * term_factor(term, self.taus)
+        bad = line > self.check_hi * (1 + 1e-9)
+        if tau_from is not None:
+            bad &= self.taus >= tau_from * (1 - 1e-12)
+        return float(self.taus[np.flatnonzero(bad)[0]]) if bad.any() else None
+
+    def others(self, term: str, values: dict[str, TermReading]) -> np.ndarray:
+        total = np.zeros(self.size)
+        for t, r in values.items():
+            if t != term and r.subtracted:
+                total += (r.value * term_factor(t, self.taus)) ** 2
+        return total
+
+    # -- terms --
+    def bias_instability(self, values: dict[str, TermReading]) -> TermReading:
+        """Where the curve has a resolved flat stretch (slope 0, told apart from ±½, over an octave or
+        more), the flat line 0.664·B read there like the other terms (touching the curve from below,
+        at its best-determined point, the other terms taken off); otherwise :meth:`minimum`."""
+        if self.runs("bias_instability") and not self.no_flat:
+            reasons: list[str] = []
+            best = self.read_runs("bias_instability", self.others("bias_instability", values), reasons, anywhere=True)
+            if best is not None:
+                got, srange = best
+                r = TermReading("bias_instability", how="flat region")
+                self.fill(r, got["i"])
+                r.value, r.ci, r.tau_range_s, r.slope_range_s = got["value"], got["ci"], got["range"], srange
+                return r
+        return self.minimum(values)
+
+    def minimum(self, values: dict[str, TermReading] | None = None) -> TermReading:
+        """NPSAT1 / IEEE 952: B = minimum of the measured curve / 0.664. Omitted when the minimum is
+        at an end of the curve without a floor there (still falling at the longest τ, or rising from
+        the shortest). An estimate only when the slope around the minimum is consistent with 0 over
+        less than an octave, or the other terms' lines (read in their own slope regions) hold more
+        than half of the minimum (a V where two other terms meet: no flat region). A floor is
+        ``seen`` when the slope there is told apart from ±½ over an octave; an estimate only too when it
+        is not (flat within the uncertainty, but too few clusters to tell a floor from a bend)."""
+        al, r = self.allan, TermReading("bias_instability", how="minimum")
+        i = int(np.argmin(al.adev))
+        last = self.size - 1
+        sig = float(al.adev[i])
+        # points indistinguishable from the minimum: lower band at or below it, contiguous around it
+        a = b = i
+        while a - 1 >= 0 and al.adev_lo[a - 1] <= sig:
+            a -= 1
+        while b + 1 <= last and al.adev_lo[b + 1] <= sig:
+            b += 1
+        cons = self.consistent["bias_instability"]
+        run = next(((lo, hi) for lo, hi in _true_runs(cons) if lo <= i <= hi), None)
+        floor = run is not None and bool(self.resolved["bias_instability"][run[0]:run[1] + 1].any())
+        self.fill(r, i)
+        r.seen, r.evidenced = floor, False
+        value = sig / FLICKER_FLOOR
+        if i == last and not floor:
+            what = "is still falling" if self.mu[last] < 0 else "has its minimum"
+            r.reason = (f"the Allan deviation {what} at the longest τ ({_fmt(self.taus[last])} s, slope "
+                        f"{self.slope_text(last)}): no floor is seen, the bias instability is below the minimum / 0.664 "
+                        "(record longer)")
+            r.upper_bound = value
+            return r
+        if i == 0 and not floor:
+            r.reason = (f"the Allan deviation rises from the shortest τ ({_fmt(self.taus[0])} s, slope "
+                        f"{self.slope_text(0)}): no floor")
+            r.upper_bound = value
+            return r
+        r.value = value
+        r.ci = (float(al.adev_lo[i]) / FLICKER_FLOOR, float(al.adev_hi[i]) / FLICKER_FLOOR)
+        r.tau_range_s = (float(self.taus[a]), float(self.taus[b]))
+        others = self.others("bias_instability", values or {})[i]
+        if others > (1 - MIN_SHARE) * sig * sig:  # the other terms' lines already fill the minimum: a V
+            r.estimate_only, r.how = True, "minimum, no flat region"
+        elif run is not None and self.taus[run[1]] / self.taus[run[0]] >= MIN_RUN_RATIO:
+            r.slope_range_s = (float(self.taus[run[0]]), float(self.taus[run[1]]))
+            if not floor:  # flat within the uncertainty, but not told apart from ±½: too few clusters
+                r.estimate_only, r.how = True, "minimum, floor not resolved"
+        else:  # the slope passes 0 within less than an octave: a V where two other terms meet
+            r.estimate_only, r.how = True, "minimum, no flat region"
+        return r
+
+    def read_runs(self, term: str, others: np.ndarray, reasons: list[str],
+                  anywhere: bool = False) -> tuple[dict[str, Any], tuple] | None:
+        """The best non-contradicting reading over the term's slope runs (smallest relative
+        uncertainty); the line is checked against the curve from the start of its range on, or at
+        every τ (``anywhere``)."""
+        best = None
+        for lo, hi in self.runs(term):
+            idx = np.arange(lo, hi + 1)
+            span = _range_text(self.taus[lo], self.taus[hi])
+            cons = idx[self.consistent[term][idx]]
+            if not cons.size:
+                reasons.append(f"at {span} the slope ({self.mu[lo]:+.2f} to {self.mu[hi]:+.2f}) is nearer "
+                               f"{SLOPE_TEXT[SLOPE[term]]} than any other term's but never within its tolerance")
+                continue
+            got = self.tangent(term, cons, others)
+            if got is None:
+                reasons.append(self.why)
+                continue
+            bad = self.contradiction(term, got["value"], None if anywhere else got["range"][0])
+            if bad is not None:
+                reasons.append(f"a {SLOPE_TEXT[SLOPE[term]]} line read at τ = {_fmt(self.taus[got['i']])} s (slope region "
+                               f"{span}) would lie above the curve's upper {CHECK_Z:g}σ bound at τ = {_fmt(bad)} s: that "
+                               f"slope is correlated noise or a transition, not {NAMES[term]}")
+                continue
+            if best is None or got["rel"] < best[0]["rel"]:
+                best = (got, (float(self.taus[lo]), float(self.taus[hi])))
+        return best
+
+    def absent_reason(self, term: str, near: int) -> str:
+        """Why a term has no slope region: the slope near where it would show (index ``near``)."""
+        s = SLOPE_TEXT[SLOPE[term]]
+        cons = self.consistent[term] & ~self.resolved[term]
+        where = f"slope {self.slope_text(near)} at τ = {_fmt(self.taus[near])} s"
+        if cons[near]:
+            nb = " or ".join(NAMES[t] for t in READ_TERMS if abs(SLOPE[t] - SLOPE[term]) == 0.5
+                            and abs(self.mu[near] - SLOPE[t]) <= self.z * self.u[near])
+            return f"too few clusters to tell {NAMES[term]} from {nb} ({where})"
+        return f"no {s} slope in the curve ({where})"
+
+    def generic(self, term: str, values: dict[str, TermReading], near: int) -> TermReading:
+        r = TermReading(term)
+        reasons: list[str] = []
+        others = self.others(term, values)
+        best = self.read_runs(term, others, reasons)
+        if best is None:
+            if not any(lo <= near <= hi for lo, hi in self.runs(term)):
+                reasons.append(self.absent_reason(term, near))
+            r.reason = "; ".join(reasons)
+            r.upper_bound = self.upper_bound(term)
+            return r
+        got, srange = best
+        self.fill(r, got["i"])
+        r.value, r.ci, r.tau_range_s, r.slope_range_s = got["value"], got["ci"], got["range"], srange
+        return r
+
+    def arw(self, values: dict[str, TermReading]) -> TermReading:
+        r = TermReading("arw")
+        others = self.others("arw", values)
+        reasons: list[str] = []
+        runs = self.runs("arw")
+        reach = self.taus[0] <= self.arw_tau_s * (1 + 1e-9) and self.taus[-1] >= self.arw_tau_s * (1 - 1e-9)
+        alt = self.read_runs("arw", others, reasons) if runs else None
+        if not runs:
+            r.reason = self.absent_reason("arw", int(np.argmin(np.abs(np.log(self.taus / self.arw_tau_s)))))
+            idx = np.flatnonzero(self.taus >= self.arw_tau_s * (1 - 1e-9)) if reach else None
+            r.upper_bound = self.upper_bound("arw", idx)
+            return r
+        got, how = None, "slope region"
+        if reach:
+            idx = np.flatnonzero(self.taus >= self.arw_tau_s * (1 - 1e-9))
+            one = int(idx[0])
+            inside = [(lo, hi) for lo, hi in runs if lo <= one <= hi]
+            if inside:  # 1 s lies on the −½ stretch: the line is the curve there; read it where best determined
+                idx = np.union1d(np.arange(inside[0][0], inside[0][1] + 1), idx)
+            got = self.tangent("arw", idx, others, need_slope=bool(inside))
+            if got is not None and self.contradiction("arw", got["value"], got["range"][0]) is not None:
+                got = None
+            how = "slope region with 1 s" if inside else "1 s"
+        if got is None:
+            if alt is None:
+                r.reason = "; ".join(reasons) or "no −½ line fits under the curve"
+                r.upper_bound = self.upper_bound("arw")
+                return r
+            got, how = alt[0], "slope region"
+        self.fill(r, got["i"])
+        r.how = how
+        r.value, r.ci, r.tau_range_s = got["value"], got["ci"], got["range"]
+        k = np.concatenate([np.arange(lo, hi + 1) for lo, hi in runs])
+        r.slope_range_s = (float(self.taus[k.min()]), float(self.taus[k.max()]))
+        if alt is not None and alt[0]["i"] != got["i"] and not r.at_slope:
+            a = alt[0]
+            r.alternative = {"value": a["value"], "ci": a["ci"], "tau_s": float(self.taus[a["i"]]),
+                             "tau_range_s": a["range"], "slope": float(self.mu[a["i"]]), "slope_u": float(self.u[a["i"]]),
+                             "slope_range_s": alt[1]}
+        return r
+
+    def iterate(self, values: dict[str, TermReading]) -> None:
+        """Read every term with the others' current variance taken off until the values settle."""
+        for _ in range(6):
+            before = {t: r.value for t, r in values.items()}
+            values["bias_instability"] = self.bias_instability(values)
+            values["quantization"] = self.generic("quantization", values, 0)
+            values["arw"] = self.arw(values)
+            values["rrw"] = self.generic("rrw", values, self.size - 1)
+            values["rate_ramp"] = self.generic("rate_ramp", values, self.size - 1)
+            if all(_same(before[t], values[t].value) for t in READ_TERMS):
+                break
+
+    def overshoot(self, values: dict[str, TermReading]) -> float | None:
+        """The first τ where the terms taken off together exceed the curve's upper CHECK_Z band."""
+        total = self.others("", values)
+        bad = total > self.check_hi ** 2 * (1 + 1e-9)
+        return float(self.taus[np.flatnonzero(bad)[0]]) if bad.any() else None
+
+    def read(self) -> dict[str, TermReading]:
+        values: dict[str, TermReading] = {t: TermReading(t) for t in READ_TERMS}
+        if self.size == 0 or not np.all(self.allan.adev > 0) or not np.all(np.isfinite(self.mu)):
+            why = ("the Allan deviation is 0 (the output does not change over the static stretch)"
+                   if not np.all(self.allan.adev > 0) else "too few averaging times for a slope")
+            for r in values.values():
+                r.reason = why
+            return values
+        self.iterate(values)
+        if values["bias_instability"].how == "flat region" and self.overshoot(values) is not None:
+            # the terms read together lie above the curve: the "flat" stretch is the V where the
+            # neighbouring slopes meet (their lines already fill it); read B as NPSAT1 does instead
+            self.no_flat = True
+            self.iterate(values)
+        # the bias instability floor must not lie above the band anywhere (it cannot: it is the minimum)
+        b = values["bias_instability"]
+        if b.value is not None:
+            bad = self.contradiction("bias_instability", b.value, None)
+            if bad is not None:
+                b.reason = f"0.664·B lies above the curve's upper confidence bound at τ = {_fmt(bad)} s"
+                b.upper_bound, b.value = b.value, None
+        return values
+
+
+def _same(a: float | None, b: float | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return math.isclose(a, b, rel_tol=1e-9)
+
+
+def _true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    out, i, n = [], 0, mask.size
+    while i < n:
+        if mask[i]:
+            j = i
+            while j + 1 < n and mask[j + 1]:
+                j += 1
+            out.append((i, j))
+            i = j + 1
+        else:
+            i += 1
+    return out
+
+
+def read_noise_terms(allan: AllanResult, *, z: float = SLOPE_Z, arw_tau_s: float = ARW_TAU_S) -> NoiseReadout:
+    """Read quantization, ARW, bias instability, rate random walk and rate ramp off a measured Allan
+    deviation the way IEEE Std 952 Annex C and NPSAT1 IV.G.3 do (method in ``docs/noise.md``).
+
+    ``allan`` should be dense in τ (:func:`analysis_m`, four per octave). Its confidence intervals
+    are recomputed for the noise type the local slope shows. Each term is read from the τ range
+    where the curve has that term's slope (local slope over an octave within SLOPE_TOL or ``z``
+    standard uncertainties of it, and apart from the neighbouring terms' slopes by more than ``z``
+    uncertainties): the line C·g(τ) that touches the curve there, with the other resolved terms'
+    variance taken off (iterated). ARW is the −½ line read at ``arw_tau_s`` (the lowest that touches
+    the curve at τ ≥ 1 s), the bias instability the curve's minimum / 0.664. A term whose slope is
+    absent, or whose line would lie above the curve's upper confidence bound at longer τ, is not
+    reported (``value`` ``None`` with a ``reason``)."""
+    rd = _Reader(allan, z, arw_tau_s)
+    return NoiseReadout(rd.allan, rd.mu, rd.u, rd.read(), z)

@@ -8,7 +8,9 @@ loaded by :func:`load_dataset` from either
   :data:`COLUMNS`; ``time_s`` and at least one gyro column are required, extra columns are ignored;
   or
 * a bench run file (``.h5``): the ACS board stream gives time, gyro, accelerometer and temperature;
-  the rate-table, chamber and thermocouple monitors are interpolated onto the board's sample times.
+  the rate-table, chamber and thermocouple monitors are interpolated onto the board's sample times;
+  or
+* another program's HDF5/netCDF-4 file with a column mapping (``--map``; ``bench/analysis/foreign.py``).
 
 Units are those in the column names: s, deg/s, deg, °C, Torr, g.
 """
@@ -101,12 +103,19 @@ class Dataset:
         return Dataset({k: v[mask] for k, v in self.columns.items()}, dict(self.meta), self.source, lines)
 
 
-def load_dataset(path: str | Path) -> Dataset:
+def load_dataset(path: str | Path, mapping=None) -> Dataset:
     """A run file (``.h5``/``.hdf5``, or any file starting with the HDF5 signature) or a measured-data
-    CSV as a :class:`Dataset`. Bad files raise :class:`InputError` with file:line and the reason."""
+    CSV as a :class:`Dataset`. Bad files raise :class:`InputError` with file:line and the reason.
+
+    With ``mapping`` (the ``--map`` values, or a :class:`bench.analysis.foreign.ForeignMapping`) the
+    file is another program's HDF5/netCDF-4 file read through that mapping (``bench/analysis/foreign.py``)."""
     p = Path(path)
     if not p.exists():
         raise InputError("data file not found", Location(p))
+    if mapping is not None:
+        from bench.analysis.foreign import dataset_from_foreign
+
+        return dataset_from_foreign(p, mapping)
     if p.suffix.lower() in (".h5", ".hdf5") or _is_hdf5(p):
         return dataset_from_run(p)
     return dataset_from_csv(p)
@@ -166,20 +175,23 @@ def dataset_from_run(path: str | Path) -> Dataset:
     from bench.sim.world import mount_matrix
 
     p = Path(path)
-    summary = read_run_summary(p)
+    # only the events read below (operator prompts, import notes): a long run logs every command
+    summary = read_run_summary(p, event_kinds=("operator", "note"))
     streams = {s.key for s in summary.streams}
     if "imported" in streams:
         return _dataset_from_import(p, summary, read_stream(p, "imported"))
     if "acs_board" not in streams:
         raise InputError(f"{p}: no ACS board stream in this run (streams: {', '.join(sorted(streams)) or 'none'}); "
                          "the analysis needs the sensor outputs")
-    board = read_stream(p, "acs_board")
+    board = read_stream(p, "acs_board", ("gyro", "accel", "temp"))
     t = _column(p, board, "acs_board", "time")
     # keep the rows whose time is finite and later than every row kept before it (a repeated or
     # backward time, or NaN from a damaged file, would break "time_s strictly increasing")
     finite = np.isfinite(t)
     latest = np.maximum.accumulate(np.where(finite, t, -np.inf))
     keep = finite & (t > np.concatenate([[-np.inf], latest[:-1]]))
+    if keep.all():
+        keep = slice(None)  # views, not copies, of a clean recording's columns
     t = t[keep]
     cols: dict[str, np.ndarray] = {"time_s": t}
     gyro = _column(p, board, "acs_board", "gyro", 3)[keep]
@@ -191,7 +203,7 @@ def dataset_from_run(path: str | Path) -> Dataset:
     cols["power_on_s"] = t - (t[0] if t.size else 0.0)
 
     if "rate_table/monitor" in streams and t.size:
-        mon = read_stream(p, "rate_table/monitor")
+        mon = read_stream(p, "rate_table/monitor", ("rate", "angle"))
         tm = _column(p, mon, "rate_table/monitor", "time")
         rate = _interp(t, tm, _column(p, mon, "rate_table/monitor", "rate"))
         ups = [(e.t_s, m.group(1)) for e in summary.events if (m := _MOUNT_PROMPT.search(e.message))]
@@ -206,7 +218,7 @@ def dataset_from_run(path: str | Path) -> Dataset:
         angle = np.degrees(np.unwrap(np.radians(_column(p, mon, "rate_table/monitor", "angle"))))
         cols["table_angle_deg"] = _interp(t, tm, angle) % 360.0
     if "tvac/monitor" in streams and t.size:
-        mon = read_stream(p, "tvac/monitor")
+        mon = read_stream(p, "tvac/monitor", ("air_temp", "pressure"))
         tm = _column(p, mon, "tvac/monitor", "time")
         cols["chamber_temp_c"] = _interp(t, tm, _column(p, mon, "tvac/monitor", "air_temp"))
         pressure = np.clip(_column(p, mon, "tvac/monitor", "pressure"), 1e-12, None)

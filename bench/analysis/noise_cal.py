@@ -2,10 +2,12 @@
 static gyro data (method and equations in ``docs/noise.md``).
 
 * :func:`calibrate` (method ``noise``, NPSAT1 thesis IV.G.3, IEEE Std 952 Annex C): overlapping
-  Allan deviation of each gyro axis with chi-squared confidence intervals, the four-term IEEE model
-  fitted by weighted non-negative least squares, and the read-outs angle random walk (deg/√h, the
-  −½ line at τ = 1 s), bias instability (deg/h, minimum of the Allan deviation / 0.664), rate
-  random walk (deg/h/√h, the +½ line at τ = 3 s) and quantization (deg, the −1 line, σ = √3·Q/τ).
+  Allan deviation of each gyro axis with chi-squared confidence intervals and local slopes, and the
+  terms read off the curve by the book (:func:`bench.analysis.allan.read_noise_terms`): angle random
+  walk (deg/√h, the −½ line at τ = 1 s), bias instability (deg/h, the flat line 0.664·B; NPSAT1's
+  minimum / 0.664 where no floor is resolved), rate random walk (deg/h/√h, σ = K·√(τ/3)), rate ramp
+  (deg/h/h, σ = R·τ/√2) and quantization (deg, σ = √3·Q/τ), each from where the curve has its slope,
+  with the range, interval and clusters, or ``null`` with the reason; a quantised output is detected.
 * :func:`calibrate_moving_average` (method ``moving-average``, ESTCube-2 thesis 3.3 / 4.1): the
   standard deviation of the N-sample moving average of the static output versus the buffer length
   N, with the σ₁/√N line expected for white noise.
@@ -29,14 +31,21 @@ from typing import Any
 import numpy as np
 
 from bench.analysis.allan import (
+    ARW_TAU_S,
     FLICKER_FLOOR,
+    NAMES,
     ONE_SIGMA,
-    TERMS,
+    READ_TERMS,
+    SLOPE,
+    SLOPE_Z,
+    UNITS,
     AllanResult,
-    NoiseTerms,
-    dominant_alpha,
-    fit_noise_terms,
+    NoiseReadout,
+    TermReading,
+    analysis_m,
     overlapping_adev,
+    read_noise_terms,
+    select_m,
 )
 from bench.analysis.dataset import AXES, GYRO, REF_RATE, Dataset
 from bench.analysis.result import CalibrationResult, ResultTable
@@ -257,65 +266,107 @@ def _check_options(method: str, opts: dict[str, Any]) -> None:
 
 
 # ---- LSB (digital output resolution) -----------------------------------------------------------
-def detect_lsb(values: np.ndarray, probe: int = 100_000) -> float | None:
-    """The output resolution (deg/s) when every value is an integer multiple of one step apart (a
-    digital output such as a 16-bit gyro register, or a CSV printed with few decimals); ``None`` for
-    continuous data or an output with fewer than three distinct values.
+MAX_LEVELS = 1 << 24
+"""A quantised output spans at most this many steps (a 24-bit converter)."""
 
-    The step is the smallest gap between distinct values of the first ``probe`` samples; every value
-    must then lie within 10⁻⁶ step of the grid.
+MIN_STEP_REL = 1e-9
+"""A quantisation step is at least this fraction of the largest |value| (well above float resolution,
+2.2e-16 relative, whose gaps between distinct float values are not an output step)."""
+
+LEVELS_PROBE = 100_000
+"""Samples probed for the distinct output values (the step search and ``output_levels``)."""
+
+
+def detect_lsb(values: np.ndarray, probe: int = LEVELS_PROBE) -> float | None:
+    """The output resolution (deg/s) of a quantised output (a digital gyro register such as 16 bits,
+    or a CSV printed with few decimals); ``None`` for continuous (float) data or an output with fewer
+    than three distinct values.
+
+    The step is the smallest gap between distinct values of the first ``probe`` samples. The output
+    counts as quantised when it has few levels for its samples (distinct values ≤ half the samples
+    probed), the step is well above float resolution (≥ 10⁻⁹ of the largest |value|), the values span
+    at most 2²⁴ steps, and every value lies within 10⁻⁶ step of the grid.
     """
     v = np.asarray(values, dtype=float)
-    u = np.unique(v[:probe])
-    if u.size < 3:
+    v = v[np.isfinite(v)]
+    head = v[:probe]
+    u = np.unique(head)
+    if u.size < 3 or u.size > head.size // 2:
         return None
     d = np.diff(u)
     step = float(d.min())
+    span = float(u[-1] - u[0])
+    if step < MIN_STEP_REL * float(np.max(np.abs(u))) or span / step > MAX_LEVELS:
+        return None
     k = d / step
     if np.max(np.abs(k - np.round(k))) > 1e-6:
         return None
     off = (v - u[0]) / step
     if np.max(np.abs(off - np.round(off))) > 1e-6:
         return None
-    span = float(u[-1] - u[0])
     return span / round(span / step)
 
 
 # ---- noise (Allan deviation) --------------------------------------------------------------------
 @dataclass
 class AxisNoise:
-    """One axis' Allan deviation, fitted terms and read-outs (units in the names)."""
+    """One axis: the Allan deviation at the displayed τ (``allan``), the read-out on the analysis grid
+    (``readout``: dense τ, local slopes, :class:`TermReading` per term), the output step ``lsb_dps``
+    (``None`` when not quantised), ``levels`` the number of distinct values among the first
+    LEVELS_PROBE samples, and the ARW with the step's white noise taken off (Sheppard), ``None`` when
+    not applicable."""
 
     allan: AllanResult
-    terms: NoiseTerms
-    bias_instability_dps: float
-    bias_instability_tau_s: float
+    readout: NoiseReadout
     lsb_dps: float | None
+    levels: int
     arw_lsb_corrected_deg_per_sqrt_h: float | None
-    bias_instability_raw_dps: float
+
+    def reading(self, term: str) -> TermReading:
+        return self.readout.readings[term]
+
+    def value(self, term: str) -> float | None:
+        """The reading in its customary unit (:data:`UNITS`), ``None`` when not reported."""
+        r = self.reading(term)
+        return r.customary(r.value)
+
+    @property
+    def slope(self) -> np.ndarray:
+        """Local slope at the displayed τ."""
+        return self.readout.slope[self._display]
+
+    @property
+    def slope_u(self) -> np.ndarray:
+        return self.readout.slope_u[self._display]
+
+    @property
+    def _display(self) -> np.ndarray:
+        return np.searchsorted(self.readout.allan.m, self.allan.m)
 
 
 def analyse_axis(rate: np.ndarray, fs: float, taus: Sequence[float] | None = None,
                  confidence: float = ONE_SIGMA) -> AxisNoise:
-    """Allan deviation of one static rate series (deg/s at ``fs`` Hz), the IEEE model fit, CIs for
-    the noise type dominating each τ, and the read-outs."""
-    first = overlapping_adev(rate, fs, taus, confidence=confidence)
-    terms = fit_noise_terms(first)
-    allan = first.with_alpha(dominant_alpha(terms, first.taus_s))
-    model = np.sqrt(terms.avar(allan.taus_s))
-    i = int(np.argmin(model)) if np.any(model > 0) else int(np.argmin(allan.adev))
-    floor = float(model[i]) if np.any(model > 0) else float(allan.adev[i])
-    lsb = detect_lsb(np.asarray(rate, dtype=float))
+    """Allan deviation of one static rate series (deg/s at ``fs`` Hz) at the displayed ``taus``
+    (default octaves) and on the analysis grid (four τ per octave, τ = 1 s and the displayed τ), and
+    the read-outs by the book (:func:`bench.analysis.allan.read_noise_terms`)."""
+    y = np.asarray(rate, dtype=float)
+    n = int(y.size)
+    shown = select_m(n, fs, taus)
+    grid = analysis_m(n, fs, shown)
+    readout = read_noise_terms(overlapping_adev(y, fs, grid / fs, confidence=confidence))
+    allan = readout.allan.subset(np.searchsorted(readout.allan.m, shown))
+    levels = int(np.unique(y[:LEVELS_PROBE]).size)
+    lsb = detect_lsb(y, LEVELS_PROBE)
     corrected = None
-    if lsb is not None:
+    arw = readout.readings["arw"]
+    if lsb is not None and arw.value is not None:
         # Sheppard: rounding to the LSB adds independent white error of variance LSB²/12 per sample
         # when the noise is at least half an LSB; it raises N² by LSB²/(12 f_s).
-        n2 = terms.n_deg_rts ** 2 - lsb ** 2 / (12.0 * fs)
+        n2 = arw.value ** 2 - lsb ** 2 / (12.0 * fs)
         sigma_true = math.sqrt(max(n2, 0.0) * fs)
         if n2 > 0 and sigma_true >= lsb / 2:
             corrected = math.sqrt(n2) * 60.0
-    return AxisNoise(allan, terms, floor / FLICKER_FLOOR, float(allan.taus_s[i]), lsb, corrected,
-                     float(np.min(allan.adev)) / FLICKER_FLOOR)
+    return AxisNoise(allan, readout, lsb, levels, corrected)
 
 
 def calibrate(ds: Dataset, *, taus: Sequence[float] | str | None = None, confidence: float = ONE_SIGMA,
@@ -323,11 +374,12 @@ def calibrate(ds: Dataset, *, taus: Sequence[float] | str | None = None, confide
               **opts: Any) -> CalibrationResult:
     """Method ``noise``: Allan-deviation noise read-outs of every gyro axis of ``ds``.
 
-    Options: ``taus`` averaging times (s; default octaves m = 1, 2, 4, … ≤ n/4 samples),
-    ``confidence`` level of the ADEV intervals (default 0.683, ±1σ), ``skip_s`` seconds dropped at
-    the start of the static stretch (warm-up; default 0), ``axes`` subset of x, y, z, ``window`` the
-    run file's recording window (default ``"auto"``: ``static`` when recorded, else every row;
-    ``"all"``: every row).
+    Options: ``taus`` averaging times (s) shown in the tables and JSON arrays (default octaves
+    m = 1, 2, 4, … ≤ n/4 samples; the read-outs always use the dense analysis grid), ``confidence``
+    level of the ADEV intervals (default 0.683, ±1σ), ``skip_s`` seconds dropped at the start of the
+    static stretch (warm-up; default 0), ``axes`` subset of x, y, z, ``window`` the run file's
+    recording window (default ``"auto"``: ``static`` when recorded, else every row; ``"all"``: every
+    row).
     JSON shape: see ``docs/noise.md``. Raises :class:`InputError` for bad data or options.
     """
     _check_options("noise", opts)
@@ -342,43 +394,39 @@ def calibrate(ds: Dataset, *, taus: Sequence[float] | str | None = None, confide
                      "mixes them (use the moving-average method, or window=N1)")
     out_axes: dict[str, Any] = {}
     rows: list[list[Any]] = []
+    detail: list[list[Any]] = []
     per_axis: dict[str, AxisNoise] = {}
     for a in use_axes:
         rate = np.asarray(sd.ds[GYRO[a]], dtype=float)
         res = analyse_axis(rate, sd.fs, tau_list, float(confidence))
         per_axis[a] = res
-        al, tm = res.allan, res.terms
-        out_axes[a] = {
-            "arw_deg_per_sqrt_h": tm.arw_deg_per_sqrt_h,
-            "bias_instability_deg_per_h": res.bias_instability_dps * DEG_H_PER_DPS,
-            "rrw_deg_per_h_per_sqrt_h": tm.rrw_deg_per_h_per_sqrt_h,
-            "quantization_deg": tm.q_deg,
-            "taus_s": al.taus_s.tolist(),
-            "adev_dps": al.adev.tolist(),
-            "adev_lo_dps": al.adev_lo.tolist(),
-            "adev_hi_dps": al.adev_hi.tolist(),
-            "n_terms": al.n_terms.tolist(),
-            "edf": al.edf.tolist(),
-            "bias_instability_tau_s": res.bias_instability_tau_s,
-            "bias_instability_fit_deg_per_h": tm.b_dps * DEG_H_PER_DPS,
-            "bias_instability_raw_deg_per_h": res.bias_instability_raw_dps * DEG_H_PER_DPS,
-            "detected": dict(tm.dominant),
-            "lsb_dps": res.lsb_dps,
-            "arw_lsb_corrected_deg_per_sqrt_h": res.arw_lsb_corrected_deg_per_sqrt_h,
-        }
+        out_axes[a] = _axis_json(res)
         notes.extend(_axis_notes(a, res, sd.fs))
-        rows.append([a, _sig(tm.arw_deg_per_sqrt_h), _sig(res.bias_instability_dps * DEG_H_PER_DPS),
-                     _sig(res.bias_instability_tau_s), _sig(tm.rrw_deg_per_h_per_sqrt_h), _sig(tm.q_deg),
-                     ", ".join(t for t in TERMS if tm.dominant[t]) or "-"])
+        n_read, b = res.reading("arw"), res.reading("bias_instability")
+        b_cell = f"{_cell(res.value('bias_instability'))} (estimate)" if b.estimate_only else _cell(res.value("bias_instability"))
+        rows.append([a, _cell(res.value("arw")), _cell(n_read.tau_s if n_read.value is not None else None), b_cell,
+                     _cell(b.tau_s if b.value is not None else None), _cell(res.value("rrw")),
+                     _cell(res.value("quantization")), _cell(res.value("rate_ramp")),
+                     ", ".join(t for t in READ_TERMS if res.reading(t).resolved) or "-"])
+        for t in READ_TERMS:
+            r = res.reading(t)
+            if r.value is None:
+                continue
+            detail.append([a, NAMES[t], _sig(r.customary(r.value)), _sig(r.customary(r.ci[0])), _sig(r.customary(r.ci[1])),
+                           UNITS[t][0], _sig(r.tau_s), f"{_sig(r.tau_range_s[0])}-{_sig(r.tau_range_s[1])}",
+                           r.n_terms, r.clusters, f"{r.slope:+.2f} ± {r.slope_u:.2f}"])
     src = ds.source or "dataset"
     n_static = len(sd.ds)
     tables = [
         ResultTable(
             f"Gyro noise from {src} ({n_static} static samples at {sd.fs:g} Hz, "
-            f"{n_static / sd.fs / 3600:.3g} h; IEEE Std 952 read-outs)",
-            ["axis", "ARW (deg/√h)", "bias instability (deg/h)", "at τ (s)", "RRW (deg/h/√h)", "quantization (deg)",
-             "terms resolved"],
+            f"{n_static / sd.fs / 3600:.3g} h; IEEE Std 952 / NPSAT1 read-outs, '-' = not reported, see notes)",
+            ["axis", "ARW (deg/√h)", "at τ (s)", "bias instability (deg/h)", "at τ (s)", "RRW (deg/h/√h)",
+             "quantization (deg)", "rate ramp (deg/h/h)", "terms resolved"],
             rows),
+        ResultTable(f"Read-outs: value, {100 * confidence:.0f} % interval from the curve's at the read point, where read",
+                    ["axis", "term", "value", "low", "high", "unit", "read at τ (s)", "τ range (s)", "overlapping clusters",
+                     "independent clusters", "local slope"], detail),
         _adev_table(per_axis, float(confidence)),
     ]
     t = sd.ds["time_s"]
@@ -386,46 +434,144 @@ def calibrate(ds: Dataset, *, taus: Sequence[float] | str | None = None, confide
         "axes": out_axes,
         "sample_rate_hz": sd.fs,
         "confidence": float(confidence),
+        "slope_z": SLOPE_Z,
         "static_samples": n_static,
         "static_t_s": [float(t[0]), float(t[-1])],
     }
     return CalibrationResult("noise", payload, tables, None, notes)
 
 
+def _cell(v: float | None) -> Any:
+    return "-" if v is None else _sig(v)
+
+
+def _pair(v: tuple[float, float] | None, factor: float = 1.0) -> list[float] | None:
+    return None if v is None else [float(v[0]) * factor, float(v[1]) * factor]
+
+
+def _term_json(r: TermReading) -> dict[str, Any]:
+    unit, f = UNITS[r.term]
+    out: dict[str, Any] = {
+        "value": r.customary(r.value),
+        "unit": unit,
+        "reason": r.reason,
+        "read": r.how or ("slope region" if r.value is not None else None),
+        "estimate_only": r.estimate_only,
+        "tau_s": r.tau_s if r.value is not None else None,
+        "tau_range_s": _pair(r.tau_range_s),
+        "ci": _pair(r.ci, f),
+        "n_terms": r.n_terms if r.value is not None else None,
+        "clusters": r.clusters if r.value is not None else None,
+        "slope_at_read": r.slope if r.value is not None else None,
+        "slope_uncertainty": r.slope_u if r.value is not None else None,
+        "slope_range_s": _pair(r.slope_range_s),
+        "upper_bound": r.customary(r.upper_bound),
+    }
+    if r.term == "arw":
+        alt = r.alternative
+        out["where_slope"] = None if alt is None else {
+            "value": alt["value"] * f, "ci": _pair(alt["ci"], f), "tau_s": alt["tau_s"],
+            "tau_range_s": _pair(alt["tau_range_s"]), "slope_at_read": alt["slope"], "slope_uncertainty": alt["slope_u"],
+            "slope_range_s": _pair(alt["slope_range_s"])}
+    return out
+
+
+def _axis_json(res: AxisNoise) -> dict[str, Any]:
+    al, b, arw = res.allan, res.reading("bias_instability"), res.reading("arw")
+    return {
+        "arw_deg_per_sqrt_h": res.value("arw"),
+        "bias_instability_deg_per_h": res.value("bias_instability"),
+        "rrw_deg_per_h_per_sqrt_h": res.value("rrw"),
+        "quantization_deg": res.value("quantization"),
+        "rate_ramp_deg_per_h_per_h": res.value("rate_ramp"),
+        "taus_s": al.taus_s.tolist(),
+        "adev_dps": al.adev.tolist(),
+        "adev_lo_dps": al.adev_lo.tolist(),
+        "adev_hi_dps": al.adev_hi.tolist(),
+        "n_terms": al.n_terms.tolist(),
+        "edf": al.edf.tolist(),
+        "slope": [None if not math.isfinite(v) else float(v) for v in res.slope],
+        "slope_uncertainty": [None if not math.isfinite(v) else float(v) for v in res.slope_u],
+        "arw_slope_at_read": arw.slope if arw.value is not None else None,
+        "bias_instability_tau_s": b.tau_s,
+        "bias_instability_raw_deg_per_h": (float(np.min(res.readout.allan.adev)) / FLICKER_FLOOR * DEG_H_PER_DPS
+                                           if res.readout.allan.adev.size else None),
+        "bias_instability_fit_deg_per_h": res.value("bias_instability"),
+        "detected": {t: res.reading(t).resolved for t in READ_TERMS},
+        "terms": {t: _term_json(res.reading(t)) for t in READ_TERMS},
+        "lsb_dps": res.lsb_dps,
+        "output_levels": res.levels,
+        "arw_lsb_corrected_deg_per_sqrt_h": res.arw_lsb_corrected_deg_per_sqrt_h,
+    }
+
+
 def _axis_notes(a: str, res: AxisNoise, fs: float) -> list[str]:
-    al, tm = res.allan, res.terms
+    al = res.allan
     out: list[str] = []
     if not np.any(al.adev > 0):
         return [f"{a}: the output does not change over the static stretch (below one output step?): no noise to analyse"]
-    last_share = tm.contributions(al.taus_s[-1:])[0]
-    plateau = tm.dominant["bias_instability"] and TERMS[int(np.argmax(last_share))] == "bias_instability"
-    if res.bias_instability_tau_s >= al.taus_s[-1] and not plateau:
-        out.append(f"{a}: the Allan deviation is still falling at the longest τ ({al.taus_s[-1]:g} s): no flat region, "
-                   "the bias instability is an upper bound (record longer)")
-    elif not tm.dominant["bias_instability"]:
-        meet = ", where the −½ and +½ lines meet" if tm.dominant["arw"] and tm.dominant["rrw"] else ""
-        out.append(f"{a}: no flat region: the bias instability is read at the minimum of the fitted curve "
-                   f"(τ = {res.bias_instability_tau_s:g} s{meet}), an upper bound")
-    if not tm.dominant["arw"]:
-        out.append(f"{a}: no −½ slope region: the ARW is not resolved by these data")
-    if not tm.dominant["rrw"]:
-        out.append(f"{a}: no +½ slope region within τ ≤ {al.taus_s[-1]:g} s: the RRW is not resolved "
-                   "(reported value is the fit's bound)")
-    if tm.dominant["quantization"]:
-        out.append(f"{a}: quantization noise (−1 slope) dominates at short τ; it is fitted separately and not "
-                   "counted in the ARW")
-    if res.lsb_dps is not None:
-        sigma = float(al.adev[0]) if al.m[0] == 1 else float("nan")
-        if math.isfinite(sigma) and sigma < res.lsb_dps:
-            out.append(f"{a}: output resolution {res.lsb_dps:.4g} deg/s exceeds the sample-to-sample noise "
-                       f"({sigma:.3g} deg/s): the output is quantization-limited and the ARW is not reliable")
+    arw, b = res.reading("arw"), res.reading("bias_instability")
+    if arw.value is not None:
+        v = arw.customary(arw.value)
+        if arw.how == "slope region":
+            reach = res.readout.allan.taus_s
+            why = ("the data do not reach τ = 1 s" if reach[0] > ARW_TAU_S or reach[-1] < ARW_TAU_S
+                   else "no −½ line read at τ ≥ 1 s holds half of the curve there")
+            out.append(f"{a}: ARW {v:.4g} deg/√h read at τ = {arw.tau_s:.3g} s where the slope is −½ ({why})")
+        if not arw.at_slope:
+            shape = "rises" if arw.slope > SLOPE["arw"] else "falls faster than −½"
+            text = (f"{a}: ARW {v:.4g} deg/√h is the −½ line read at τ = {arw.tau_s:.3g} s (NPSAT1), but the curve {shape} "
+                    f"there (slope {arw.slope:+.2f} ± {arw.slope_u:.2f})")
+            if arw.slope > SLOPE["arw"]:
+                text += (": correlated noise. The reading is the largest white noise the curve allows from 1 s on; below "
+                         "1 s the curve lies under the −½ line (output filter or correlated noise)")
+            alt = arw.alternative
+            if alt is not None:
+                lo, hi = alt["slope_range_s"]
+                text += (f". Where the curve itself falls as −½ (τ = {lo:.3g}-{hi:.3g} s) the −½ line touching it "
+                         f"from below (at τ = {alt['tau_s']:.3g} s) gives {alt['value'] * 60:.4g} deg/√h "
+                         "(`terms.arw.where_slope`): over integration times beyond that τ the noise grows like an angle "
+                         "random walk of that size. The curve cannot tell white noise behind a filter from a correlated "
+                         "(Gauss-Markov-like) process")
+            out.append(text)
+    if b.value is not None and b.estimate_only:
+        bv = b.customary(b.value)
+        if b.how == "minimum, no flat region":
+            out.append(f"{a}: no flat region: the slope passes 0 within less than an octave around the minimum "
+                       f"(τ = {b.tau_s:.3g} s); the bias instability {bv:.4g} deg/h (minimum / 0.664) is an estimate only, "
+                       "an upper bound (NPSAT1 Table 13)")
         else:
-            share = res.lsb_dps ** 2 / 12.0 / max(tm.n_deg_rts ** 2 * fs, 1e-300)
+            lo, hi = b.slope_range_s
+            out.append(f"{a}: bias instability {bv:.4g} deg/h (minimum / 0.664 at τ = {b.tau_s:.3g} s) is an estimate only: "
+                       f"the curve is flat within its uncertainty at τ = {lo:.3g}-{hi:.3g} s, but too few clusters there to "
+                       f"tell a floor from a bend (slope {b.slope:+.2f} ± {b.slope_u:.2f} at the minimum; ±½ not excluded "
+                       "at 2σ); record longer to resolve it")
+    if b.value is None and b.upper_bound is not None:
+        out.append(f"{a}: bias instability not reported: {b.reason}; B < {b.customary(b.upper_bound):.4g} deg/h")
+    missing = [f"{NAMES[t]} ({res.reading(t).reason})" for t in READ_TERMS
+               if t != "bias_instability" and res.reading(t).value is None and res.reading(t).reason]
+    if missing:
+        out.append(f"{a}: not reported: " + "; ".join(missing))
+    q = res.reading("quantization")
+    if q.value is not None:
+        out.append(f"{a}: quantization noise (−1 slope) dominates at short τ; it is read separately and not counted in "
+                   "the ARW")
+    if res.lsb_dps is not None:
+        lsb = res.lsb_dps
+        out.append(f"{a}: the output is quantised: {res.levels} distinct values on a grid of {lsb:.4g} deg/s "
+                   "(output resolution, e.g. a digital register)")
+        first = res.readout.allan  # the analysis grid starts at m = 1: σ(τ₀) is the sample-to-sample noise
+        sigma = float(first.adev[0])
+        if first.m[0] == 1 and sigma < lsb:
+            out.append(f"{a}: output resolution {lsb:.4g} deg/s exceeds the sample-to-sample noise "
+                       f"({sigma:.3g} deg/s): the output is quantization-limited and the ARW is not reliable")
+        elif arw.value is not None:
+            share = lsb ** 2 / 12.0 / (arw.value ** 2 * fs)
             if share > 0.02:
-                out.append(f"{a}: output resolution {res.lsb_dps:.4g} deg/s adds white noise LSB²/12 = {100 * share:.0f} % "
-                           f"of the white-noise variance; the sensor ARW without it is "
-                           + (f"{res.arw_lsb_corrected_deg_per_sqrt_h:.4g} deg/√h"
-                              if res.arw_lsb_corrected_deg_per_sqrt_h is not None else "not resolvable"))
+                corrected = res.arw_lsb_corrected_deg_per_sqrt_h
+                out.append(f"{a}: output resolution {lsb:.4g} deg/s adds white noise LSB²/12 = {100 * share:.0f} % of the "
+                           "white-noise variance; the sensor ARW without it is "
+                           + (f"{corrected:.4g} deg/√h" if corrected is not None else "not resolvable"))
     return out
 
 
@@ -434,15 +580,17 @@ def _adev_table(per_axis: dict[str, AxisNoise], confidence: float) -> ResultTabl
     ref = per_axis[axes[0]].allan
     headers = ["τ (s)", "terms"]
     for a in axes:
-        headers += [f"σ_{a} (deg/s)", f"{a} {100 * confidence:.0f} % low", f"{a} high"]
+        headers += [f"σ_{a} (deg/s)", f"{a} {100 * confidence:.0f} % low", f"{a} high", f"{a} slope"]
     rows = []
     for k in range(ref.taus_s.size):
         row: list[Any] = [_sig(ref.taus_s[k]), int(ref.n_terms[k])]
         for a in axes:
             al = per_axis[a].allan
-            row += [_sig(al.adev[k]), _sig(al.adev_lo[k]), _sig(al.adev_hi[k])]
+            s = per_axis[a].slope[k]
+            row += [_sig(al.adev[k]), _sig(al.adev_lo[k]), _sig(al.adev_hi[k]),
+                    f"{s:+.2f}" if math.isfinite(s) else "-"]
         rows.append(row)
-    return ResultTable("Overlapping Allan deviation (chi-squared intervals, edf for the dominant noise type)",
+    return ResultTable("Overlapping Allan deviation (chi-squared intervals, edf for the noise type of the local slope)",
                        headers, rows)
 
 

@@ -50,6 +50,16 @@ Vocabulary (equations in ``docs/diagnose.md``; defaults cite the seeds, [U] = as
   up (−gravity, i.e. the specific force direction), n̂ north: the table geometry of
   ``bench/sim/world.py`` (tilt about west, table angle 0 = platter x north, ``table_axis`` the
   sensor axis on the platter normal). Latitude default 36.4° (NPSAT1 IV.E, Monterey).
+* ``bias_step``: the bias jumps by ``step_dps`` at ``t_step_s`` (IEEE Std 952 lists bias shifts
+  among the errors to screen for; a connector re-seated, a latch-up). Default 0.
+* ``periodic``: A·sin(2π·f·t + φ), periodic interference (NPSAT1 IV.G.3 names "sinusoidal error"
+  among the Allan components). Default 0.
+* ``scale_factor_nonlinearity``: k2·ω² + k3·ω³ (IEEE Std 1431 scale-factor nonlinearity). Default 0.
+* ``bias_instability``: flicker bias noise, Allan plateau 0.664·B (IEEE Std 952 C.1.3), by a sum of
+  Gauss-Markov processes one octave apart; default B = 1.92 deg/h (NPSAT1 Table 13, X).
+
+A term is added in one place, :func:`register` (parameters, forward function, inputs); its
+diagnose candidate joins with ``bench.analysis.diagnose.terms.register``.
 """
 
 from __future__ import annotations
@@ -170,6 +180,42 @@ class EarthRateParams:
     table_axis: str = "z"
 
 
+@dataclass
+class BiasStepParams:
+    """The bias jumps by ``step_dps`` at ``t_step_s`` (s of the session's time axis) and stays."""
+
+    step_dps: float = 0.0
+    t_step_s: float = 0.0
+
+
+@dataclass
+class PeriodicParams:
+    """Periodic interference A·sin(2π·f·t + φ) (deg/s, Hz, rad): a fan, a pump, a supply ripple."""
+
+    amplitude_dps: float = 0.0
+    frequency_hz: float = 0.01
+    phase_rad: float = 0.0
+
+
+@dataclass
+class ScaleFactorNonlinearityParams:
+    """Output += k2·ω² + k3·ω³ (IEEE Std 1431 scale-factor nonlinearity; k2 per deg/s, k3 per (deg/s)²)."""
+
+    quadratic_per_dps: float = 0.0
+    cubic_per_dps2: float = 0.0
+
+
+@dataclass
+class BiasInstabilityParams:
+    """Flicker (1/f) bias noise of coefficient B (deg/s; Allan plateau 0.664·B, IEEE Std 952 C.1.3),
+    between correlation times ``tau_min_s`` and ``tau_max_s``. Default B: NPSAT1 Table 13 X,
+    1.92 deg/h."""
+
+    b_dps: float = 1.92 / 3600.0
+    tau_min_s: float = 1.0
+    tau_max_s: float = 1.0e4
+
+
 PARAMS: dict[str, type] = {
     "thermal_lag": ThermalLagParams,
     "warmup_transient": WarmupTransientParams,
@@ -182,8 +228,12 @@ PARAMS: dict[str, type] = {
     "time_skew": TimeSkewParams,
     "rate_random_walk": RateRandomWalkParams,
     "earth_rate": EarthRateParams,
+    "bias_step": BiasStepParams,
+    "periodic": PeriodicParams,
+    "scale_factor_nonlinearity": ScaleFactorNonlinearityParams,
+    "bias_instability": BiasInstabilityParams,
 }
-"""The vocabulary: effect name -> parameter dataclass."""
+"""The vocabulary: effect name -> parameter dataclass (grown with :func:`register`)."""
 
 VOCABULARY: tuple[str, ...] = tuple(PARAMS)
 
@@ -199,6 +249,10 @@ NEEDS: dict[str, tuple[str, ...]] = {
     "time_skew": (),
     "rate_random_walk": (),
     "earth_rate": ("specific_force_g",),
+    "bias_step": (),
+    "periodic": (),
+    "scale_factor_nonlinearity": (),
+    "bias_instability": (),
 }
 """Input attributes each effect reads besides ``time_s`` and ``rate_dps``."""
 
@@ -439,6 +493,51 @@ def _rrw(p: RateRandomWalkParams, inp: InputsLike, k: int, t: np.ndarray, rng) -
     return np.cumsum(rng.standard_normal(t.shape[0]) * p.k_dps_per_sqrt_s * np.sqrt(dt))
 
 
+def _bias_step(p: BiasStepParams, inp: InputsLike, k: int, t: np.ndarray, rng) -> np.ndarray:
+    return p.step_dps * (t >= p.t_step_s)
+
+
+def _periodic(p: PeriodicParams, inp: InputsLike, k: int, t: np.ndarray, rng) -> np.ndarray:
+    return p.amplitude_dps * np.sin(2.0 * math.pi * p.frequency_hz * t + p.phase_rad)
+
+
+def _sf_nonlinear(p: ScaleFactorNonlinearityParams, inp: InputsLike, k: int, t: np.ndarray, rng) -> np.ndarray:
+    w = np.asarray(inp.rate_dps, dtype=float)[:, k]
+    return p.quadratic_per_dps * w * w + p.cubic_per_dps2 * w ** 3
+
+
+def flicker_noise(t: np.ndarray, b_dps: float, tau_min_s: float, tau_max_s: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Flicker (1/f) noise of bias-instability coefficient B (deg/s) at sample times ``t`` (s).
+
+    A sum of first-order Gauss-Markov processes with correlation times one octave apart between
+    ``tau_min_s`` and ``tau_max_s`` (r = 2), each of variance q² = B²·ln r/π: the sum of their
+    Lorentzian spectra 2q²T/(1 + (2πfT)²) over T spaced by a factor r is q²/(2 f ln r) = B²/(2π f),
+    the one-sided 1/f spectrum of IEEE Std 952 C.1.3, whose Allan deviation is flat at 0.664·B for
+    averaging times τ between about 2·tau_min and tau_max/2."""
+    t = np.asarray(t, dtype=float)
+    n = t.shape[0]
+    out = np.zeros(n)
+    if n == 0 or b_dps == 0:
+        return out
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    r = 2.0
+    count = max(int(math.floor(math.log(tau_max_s / tau_min_s, r))) + 1, 1)
+    q = abs(b_dps) * math.sqrt(math.log(r) / math.pi)
+    for j in range(count):
+        tc = tau_min_s * r ** j
+        a = math.exp(-dt / tc)
+        w = rng.standard_normal(n) * q * math.sqrt(1.0 - a * a)
+        w[0] = rng.standard_normal() * q  # stationary start
+        out += lfilter([1.0], [1.0, -a], w)
+    return out * (1.0 if b_dps > 0 else -1.0)
+
+
+def _bias_instability(p: BiasInstabilityParams, inp: InputsLike, k: int, t: np.ndarray, rng) -> np.ndarray:
+    rng = rng if rng is not None else np.random.default_rng()
+    return flicker_noise(t, p.b_dps, p.tau_min_s, p.tau_max_s, rng)
+
+
 _FORWARD: dict[str, Callable[..., np.ndarray]] = {
     "thermal_lag": _thermal_lag,
     "warmup_transient": _warmup,
@@ -449,7 +548,27 @@ _FORWARD: dict[str, Callable[..., np.ndarray]] = {
     "scale_factor_tempco": _sf_tempco,
     "hysteresis": _hyst,
     "rate_random_walk": _rrw,
+    "bias_step": _bias_step,
+    "periodic": _periodic,
+    "scale_factor_nonlinearity": _sf_nonlinear,
+    "bias_instability": _bias_instability,
 }
+
+
+def register(name: str, params: type, forward: Callable[..., np.ndarray], needs: tuple[str, ...] = ()) -> None:
+    """Add a term to the vocabulary: ``params`` a dataclass of its parameters (defaults cited),
+    ``forward(p, inputs, k, time_s, rng) -> (n,)`` its contribution to axis ``k`` in deg/s,
+    ``needs`` the input attributes it reads. The simulator (``effects:`` of a sensor model) applies
+    it from then on; ``bench.analysis.diagnose.terms.register`` adds its candidate for diagnose."""
+    if not name or not name.replace("_", "").isalnum():
+        raise ValueError(f"effect name must be an identifier, got {name!r}")
+    if name in PARAMS and PARAMS[name] is not params:
+        raise ValueError(f"effect {name!r} is already in the vocabulary")
+    PARAMS[name] = params
+    NEEDS[name] = tuple(needs)
+    _FORWARD[name] = forward
+    global VOCABULARY
+    VOCABULARY = tuple(PARAMS)
 
 
 # ---- parsing and validation ---------------------------------------------------------------------
@@ -517,6 +636,10 @@ def _check(name: str, p: Any) -> None:
         raise ValueError("deadband_c must be >= 0 °C")
     if name == "rate_random_walk" and p.k_dps_per_sqrt_s < 0:
         raise ValueError("k_dps_per_sqrt_s must be >= 0")
+    if name == "periodic" and not p.frequency_hz > 0:
+        raise ValueError(f"frequency_hz must be > 0 Hz, got {p.frequency_hz!r}")
+    if name == "bias_instability" and not 0 < p.tau_min_s < p.tau_max_s:
+        raise ValueError("tau_min_s and tau_max_s must satisfy 0 < tau_min_s < tau_max_s")
     if name == "earth_rate" and not -90 <= p.latitude_deg <= 90:
         raise ValueError(f"latitude_deg must be within ±90°, got {p.latitude_deg!r}")
 

@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Collection, Iterator
 
 import h5py
 import numpy as np
@@ -116,23 +116,27 @@ class RunSummary:
     warnings: list[str] = field(default_factory=list)
 
 
-def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_unix: float | None = None) -> RunSummary:
+def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_unix: float | None = None,
+                     event_kinds: Collection[str] | None = None) -> RunSummary:
     """Summarise the run file at ``path`` (complete, aborted, crashed or still being written).
 
     ``stale_after_s`` (s) is the heartbeat age from which a ``running`` file is reported as
-    ``crashed``; ``now_unix`` (s since epoch) defaults to the current time.
+    ``crashed``; ``now_unix`` (s since epoch) defaults to the current time. ``event_kinds``: decode
+    only the events of these kinds (``events``, ``steps`` and ``event_counts`` then see only those;
+    a long run logs every command and reply, hundreds of thousands of events).
     Raises :class:`InputError` if the file is not a readable bench run file or is of a newer format.
     """
     path = Path(path)
     with _open_run(path) as (f, warnings):
-        summary = _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix)
+        summary = _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix, event_kinds)
         summary.warnings = warnings
         return summary
 
 
-def read_stream(path: Path, stream_key: str) -> dict[str, np.ndarray]:
-    """All rows of stream ``stream_key``: ``time`` (run time, s) and every column, each cut to the
-    number of rows complete in every dataset. Raises :class:`InputError` for an unknown stream."""
+def read_stream(path: Path, stream_key: str, columns: Collection[str] | None = None) -> dict[str, np.ndarray]:
+    """All rows of stream ``stream_key``: ``time`` (run time, s) and every column (only ``time`` and
+    those of ``columns`` that exist, when given), each cut to the number of rows complete in every
+    dataset. Raises :class:`InputError` for an unknown stream."""
     path = Path(path)
     with _open_run(path) as (f, _warnings):
         groups = _stream_groups(f)
@@ -142,7 +146,8 @@ def read_stream(path: Path, stream_key: str) -> dict[str, np.ndarray]:
         names = _column_order(g)
         limit = _size_limit(path)
         rows = min(_checked_rows(g[n], limit) for n in names)
-        return {n: np.asarray(g[n][:rows]) for n in names}
+        wanted = names if columns is None else [n for n in names if n == "time" or n in columns]
+        return {n: np.asarray(g[n][:rows]) for n in wanted}
 
 
 # ---- opening ------------------------------------------------------------------------------------
@@ -385,7 +390,8 @@ def _checked_rows(ds: h5py.Dataset, limit: int) -> int:
     return int(ds.shape[0])
 
 
-def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float) -> RunSummary:
+def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
+               event_kinds: Collection[str] | None = None) -> RunSummary:
     limit = _size_limit(path)
     attrs = {k: _plain(v) for k, v in f.attrs.items()}
     if _checked_rows(f["heartbeat"], limit) != 2:
@@ -406,7 +412,7 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float) 
                 status, detail = "crashed", f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
             else:
                 detail = f"being written: last heartbeat {since} ({age:.1f} s ago{at})"
-    events = _read_events(f, limit)
+    events = _read_events(f, limit, event_kinds)
     counts: dict[str, int] = {}
     for e in events:
         counts[e.kind] = counts.get(e.kind, 0) + 1
@@ -486,11 +492,13 @@ def _stream_summary(key: str, g: h5py.Group, limit: int) -> StreamSummary:
     return StreamSummary(key, columns, shapes, rows, t0, t1, rate)
 
 
-def _read_events(f: h5py.File, limit: int) -> list[EventRow]:
+def _read_events(f: h5py.File, limit: int, kinds: Collection[str] | None = None) -> list[EventRow]:
     ds = f["events"]
     if not _EVENT_FIELDS <= set(ds.dtype.names or ()):
         raise ValueError("/events does not have the bench event fields")
     rows = ds[: _checked_rows(ds, limit)]
+    if kinds is not None:
+        rows = rows[np.isin(rows["kind"], np.array([k.encode("ascii") for k in kinds], dtype=rows.dtype["kind"]))]
     blob_ds = f["events_blob"]
     blob = np.asarray(blob_ds[: _checked_rows(blob_ds, limit)], dtype=np.uint8).tobytes()
     out = []

@@ -467,6 +467,30 @@ def section_rate_transfer(cal_json: dict[str, Any]) -> str:
     out += figure_png(F.fig_rate_transfer(axes),
                       "Mean output vs commanded rate with the fitted line; below, output error vs |rate| against the zero-rate "
                       "reference and raw (filled: + rates, open: − rates).")
+    out += _rate_transfer_residuals(axes, cal_json.get("common_mode"))
+    return out
+
+
+def _rate_transfer_residuals(axes: dict[str, Any], common: Any) -> str:
+    """The steps off their axis' line (residual against the line fitted without the step's rate, σ,
+    t) and the common-mode rates, when the calibration reports them (``off`` / ``common_mode``)."""
+    tested = [v for v in axes.values() if any("off" in s for s in v.get("steps") or [])]
+    if not tested:
+        return ""
+    rows = [[a, "0 (ref)" if s.get("rate_dps") is None else s.get("rate_dps"), s.get("deleted_residual_dps"), s.get("sigma_dps"),
+             s.get("t")] for a, v in axes.items() for s in (v.get("steps") or []) + (v.get("references") or []) if s.get("off")]
+    if rows:
+        out = table(["axis", "rate (deg/s)", "off the line by (deg/s)", "σ (deg/s)", "t"], rows,
+                    title="Steps off the line (externally studentised; Bonferroni 1 % per axis)")
+    else:
+        out = note("No step is off its axis' line (externally studentised residuals, Bonferroni 1 % per axis).")
+    if isinstance(common, list) and common:
+        out += table(["rate (deg/s)", "axis", "mean off the line by (deg/s)", "σ (deg/s)", "z"],
+                     [[c.get("rate_dps"), a, v.get("deleted_residual_dps"), v.get("sigma_dps"), v.get("z")]
+                      for c in common for a, v in (c.get("axes") or {}).items()],
+                     title="Common-mode rates: off on every axis measured at the rate (a reference or table effect)")
+    elif isinstance(common, list):
+        out += note("No common-mode rate (none off on every axis measured at it).")
     return out
 
 

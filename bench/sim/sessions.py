@@ -227,7 +227,8 @@ def _rate_schedule(rng: np.random.Generator, duration_s: float, levels: Sequence
 def make_session(duration_s: float = 3600.0, rate_hz: float = 1.0, effects: Sequence[dict[str, Any] | Effect] = (),
                  seed: int = 0, kind: str = "tvac", mount: str = "z", latitude_deg: float = 36.4,
                  base: BaselineSensor | dict[str, Any] | None = None, thermal_speedup: float | None = None,
-                 quantize_gyro_dps: float | None = None, model: Any = None, engine: str = "auto") -> Session:
+                 quantize_gyro_dps: float | None = None, model: Any = None, engine: str = "auto",
+                 extra: Any = None) -> Session:
     """Generate a session (see module docstring) and return it with its hidden truth.
 
     :param duration_s: length (s)
@@ -243,6 +244,9 @@ def make_session(duration_s: float = 3600.0, rate_hz: float = 1.0, effects: Sequ
     :param model: a sensor-model file (path or loaded ``SensorModelSpec``, ``npsat1_gyro``) to
         simulate instead of ``base``, its ``effects:`` included (e.g. ``bench diagnose -o`` output)
     :param engine: ``"auto"``/``"gyro"``/``"builtin"``, see :func:`sensor_output`
+    :param extra: an error outside the vocabulary: ``extra(inputs) -> (n, 3)`` deg/s added to the
+        gyro output (``inputs`` a :class:`SessionInputs`); what a real bench produces that nobody
+        wrote a term for (tests hide such effects from diagnose)
     """
     if kind not in ("tvac", "stepper"):
         raise InputError(f"session kind must be 'tvac' or 'stepper', got {kind!r}")
@@ -337,6 +341,11 @@ def make_session(duration_s: float = 3600.0, rate_hz: float = 1.0, effects: Sequ
 
         spec = load_sensor_model(model) if isinstance(model, (str, Path)) else model
     gyro = sensor_output(inputs, base, eff, noise_rng, rate_hz, spec, engine)
+    if extra is not None:
+        add = np.asarray(extra(inputs), dtype=float)
+        if add.shape != gyro.shape:
+            raise InputError(f"session extra: expected an array of shape {gyro.shape}, got {add.shape}")
+        gyro = gyro + add
     if quantize_gyro_dps:
         gyro = np.round(gyro / quantize_gyro_dps) * quantize_gyro_dps
     accel = force_s + noise_rng.standard_normal((n, 3)) * noise_sigma(ACCEL_NOISE_DENSITY, rate_hz)

@@ -30,23 +30,31 @@ from bench.model import effects as fx
 __all__ = ["diagnose", "DiagnoseResult", "Finding", "write_report", "IC_MIN", "GAIN_MIN"]
 
 
-def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0) -> DiagnoseResult:
+def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: tuple[str, ...] | frozenset[str] = (),
+             progress: Any = None) -> DiagnoseResult:
     """Fit the baseline sensor model (plus the model file's known terms) to ``ds``, search the
     vocabulary for missing effects by blocked cross-validation, and return the findings.
 
     ``model_path``: a sensor-model YAML (``configs/sensors/*.yaml`` or a previous ``-o`` output);
     its nonzero warm-up, pressure, g-sensitivity and rate-random-walk terms and its ``effects:``
     join the baseline (nonlinear parameters as given, amplitudes refitted) and are not searched
-    again. ``seed`` is accepted for interface stability; the method is deterministic.
+    again. ``seed`` is accepted for interface stability; the method is deterministic. ``hidden``:
+    vocabulary names left out of the search (what the engine says about an effect it has no name
+    for; the tests hide the injected effect this way). ``progress``: a callable taking one line of
+    text, called as the search goes.
     """
     del seed  # deterministic: blocked folds, grids, no random draws
     from bench.analysis.diagnose.blas import single_thread
 
+    unknown = set(hidden) - set(CANDIDATES)
+    if unknown:
+        raise InputError(f"diagnose: unknown vocabulary name(s) to hide: {', '.join(sorted(unknown))}")
     with single_thread():
-        return _diagnose(ds, model_path)
+        return _diagnose(ds, model_path, frozenset(hidden), progress)
 
 
-def _diagnose(ds: Dataset, model_path: str | None) -> DiagnoseResult:
+def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = frozenset(),
+              progress: Any = None) -> DiagnoseResult:
     p = prepare(ds)
     raw, spec_effects, model_terms = None, [], []
     if model_path is not None:
@@ -56,8 +64,15 @@ def _diagnose(ds: Dataset, model_path: str | None) -> DiagnoseResult:
     fixed = []
     for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
         fixed += _fixed_terms(p, name, axis, nl, ctx)
-    found = search(p, base_terms + fixed)
-    return _result(p, ds, found, model_path, raw, fixed)
+    found = search(p, base_terms + fixed, hidden=hidden, progress=progress)
+    from bench.analysis.diagnose.engine import sequence
+    from bench.analysis.diagnose.openworld import finish
+
+    ow = finish(p, base_terms + fixed, [t for t in found.final.terms if t.effect != "baseline" and not t.fixed],
+                hidden, progress)
+    found.dropped.extend(ow.dropped)
+    found.sequence, found.final = sequence(p, build_state(p, base_terms + fixed), ow.found)
+    return _result(p, ds, found, model_path, raw, fixed, ow)
 
 
 # ---- model file -----------------------------------------------------------------------------------
@@ -142,7 +157,7 @@ def _noise_floor(r: np.ndarray) -> float:
 
 
 def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: dict[str, Any] | None,
-            fixed: list[Term]) -> DiagnoseResult:
+            fixed: list[Term], ow: Any) -> DiagnoseResult:
     skipped, reasons = [], {}
     for cand in CANDIDATES.values():
         miss = cand.missing(p)
@@ -164,7 +179,10 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             num = sum(float(np.dot(before.axes[a].resid(), term.built.offsets[a])) for a in touched)
             den = sum(float(np.dot(term.built.offsets[a], term.built.offsets[a])) for a in touched)
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
+        ev.setdefault("gain_band", _band_gain(p, before, after, touched))
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
+    for nf in ow.noise:
+        findings.append(Finding(nf.effect, nf.axis, nf.params, nf.rms_before, nf.rms_after, dict(nf.evidence)))
     floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
     from bench.analysis.diagnose.structure import analyse
 
@@ -174,7 +192,17 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
         source=ds.source, axes=axes, findings=findings, skipped=skipped, skipped_reasons=reasons,
         not_excited=s.not_excited, noise_floor=floors, rows=p.n, sample_rate_hz=p.fs, model_path=model_path,
         base_model=raw, fitted_baseline=_fitted_baseline(p, s), rounds=s.rounds, dropped=s.dropped,
-        fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, _internal=(p, s))
+        fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, unexplained=ow.unexplained,
+        band_s=p.blocks.length / p.fs, _internal=(p, s))
+
+
+def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:
+    """Relative drop of the held-out block-mean RMS from state ``before`` to ``after``."""
+    from bench.analysis.diagnose.engine import band_rms
+
+    b0 = band_rms({a: before.axes[a].fit.sum_block for a in axes}, p.blocks)
+    b1 = band_rms({a: after.axes[a].fit.sum_block for a in axes}, p.blocks)
+    return 1.0 - b1 / b0 if b0 > 0 else 0.0  # reported as measured (the rule's t test is in engine.band_gain)
 
 
 def _temp_coefs(state: Any, a: str) -> np.ndarray:

@@ -29,6 +29,17 @@ five, spread over the whole session. Blocks carrying a rarely excited reference 
 axis that only turns during tilt moves) are dealt round-robin first (:meth:`Blocks.balance`)."""
 RATE_EXCITED_DPS = 0.05
 """An axis whose reference rate RMS is below this (deg/s) has no rate-dependent terms fitted."""
+BIN_MIN_ROWS = 100_000
+"""Data with more rows than this are analysed as means of consecutive rows (:func:`bin_length`)."""
+BIN_MAX_S = 1.0
+"""Longest bin (s): the slowest-sampled sessions diagnose is validated on are 1 Hz, and every
+vocabulary term but the fast ones named in :func:`bin_length` varies over tens of seconds or more."""
+BIN_PER_PERIOD = 4
+"""A periodic signal the vocabulary can see (a gear harmonic, a spectral line) keeps at least this
+many bins per period: its bin means keep ≥ 90 % of its amplitude (sinc(1/4))."""
+LINE_FRACTION = 0.02
+"""A spectral line above the bins' reach that carries this share of the gyro variance (1 % of its
+RMS, the materiality of ``engine.GAIN_MIN``) shortens the bins so that it is kept."""
 
 
 @dataclass
@@ -119,10 +130,27 @@ class Prepared:
     """Sensor axis on the table's rotation axis with its sign (``"z"``, ``"-x"``), None if no rotation."""
     present: set[str] = field(default_factory=set)
     cache: dict = field(default_factory=dict)
+    bin_rows: int = 1
+    """Rows averaged into each analysed row (1: the rows as recorded; see :func:`bin_length`)."""
+    raw_rows: int = 0
+    """Rows of the data before binning (with finite time and gyro values)."""
+    raw_fs: float = float("nan")
+    """Sample rate of the data before binning (Hz)."""
+    bin_reason: str = ""
+    """What limited the bin length (empty when not binned or at :data:`BIN_MAX_S`)."""
 
     @property
     def n(self) -> int:
         return int(self.t.shape[0])
+
+    def rows_line(self) -> str:
+        """What was analysed, e.g. "analysed 13,190 bin means of 100 rows (1 s) from 1,319,000 samples
+        at 100 Hz; RMS figures are those of the bin means"."""
+        if self.bin_rows <= 1:
+            return f"analysed {self.n:,} rows at {self.fs:.4g} Hz"
+        why = f", {self.bin_reason}" if self.bin_reason else ""
+        return (f"analysed {self.n:,} bin means of {self.bin_rows} rows ({self.bin_rows / self.raw_fs:.3g} s{why}) "
+                f"from {self.raw_rows:,} samples at {self.raw_fs:.4g} Hz; RMS figures are those of the bin means")
 
     @property
     def duration_s(self) -> float:
@@ -151,7 +179,8 @@ class Prepared:
 
 
 def prepare(ds: Dataset) -> Prepared:
-    """Check ``ds`` and extract the arrays; :class:`InputError` when diagnose cannot run on it."""
+    """Check ``ds`` and extract the arrays; :class:`InputError` when diagnose cannot run on it.
+    More than :data:`BIN_MIN_ROWS` rows are averaged into bins (:func:`bin_length`)."""
     if "time_s" not in ds.columns:
         raise InputError(f"{ds.source}: diagnose needs a time_s column")
     axes = [a for a in AXES if GYRO[a] in ds.columns]
@@ -164,22 +193,31 @@ def prepare(ds: Dataset) -> Prepared:
     if int(ok.sum()) < MIN_ROWS:
         raise InputError(f"{ds.source}: diagnose needs at least {MIN_ROWS} rows with finite time and gyro values, "
                          f"got {int(ok.sum())}")
-    t = t[ok]
+    every = bool(ok.all())
+    t = t if every else t[ok]
     if np.any(np.diff(t) <= 0):
         raise InputError(f"{ds.source}: time_s must increase from row to row")
 
-    def col(name: str) -> np.ndarray | None:
-        if name not in ds.columns:
-            return None
-        v = np.asarray(ds.columns[name], dtype=float)[ok]
-        return v if np.all(np.isfinite(v)) else None
-
-    present: set[str] = set()
+    raw: dict[str, np.ndarray] = {}
     for name in ds.columns:
-        if col(name) is not None:
-            present.add(name)
-    dt = np.diff(t)
-    fs = 1.0 / float(np.median(dt))
+        v = np.asarray(ds.columns[name], dtype=float)
+        v = v if every else v[ok]
+        if v.ndim == 1 and np.all(np.isfinite(v)):
+            raw[name] = v
+    present = set(raw)
+    raw_fs = 1.0 / float(np.median(np.diff(t)))
+    raw_rows = t.size
+    k, why = 1, ""
+    if t.size > BIN_MIN_ROWS:
+        k, why = bin_length(t.size, raw_fs, {a: raw[GYRO[a]] - raw.get(REF_RATE[a], 0.0) for a in axes},
+                            [raw[REF_RATE[a]] for a in AXES if REF_RATE[a] in raw])
+    if k > 1:
+        t, raw = _bin_means(t, raw, k, raw_fs)
+
+    def col(name: str) -> np.ndarray | None:
+        return raw.get(name)
+
+    fs = raw_fs / k if k > 1 else raw_fs
     gyro = {a: col(GYRO[a]) for a in axes}
     refs = [col(REF_RATE[a]) for a in AXES]
     ref = np.stack([r if r is not None else np.zeros(t.size) for r in refs], axis=1) if any(r is not None for r in refs) else None
@@ -199,11 +237,101 @@ def prepare(ds: Dataset) -> Prepared:
         length = max(n // (4 * FOLDS), 1)
     prep = Prepared(source=ds.source, t=t, fs=fs, axes=axes, gyro=gyro, ref=ref, temp=temp, pressure=pressure,
                     power_on=col("power_on_s"), accel=accel, angle=col("table_angle_deg"),
-                    latitude=ds.latitude_deg(), blocks=Blocks(n, length), present=present)
+                    latitude=ds.latitude_deg(), blocks=Blocks(n, length), present=present,
+                    bin_rows=k, raw_rows=raw_rows, raw_fs=raw_fs, bin_reason=why)
     prep.table_axis = _table_axis(prep)
     if ref is not None:
         prep.blocks.balance(ref)
     return prep
+
+
+def bin_length(n: int, fs: float, response: dict[str, np.ndarray], refs: list[np.ndarray]) -> tuple[int, str]:
+    """Rows per bin for ``n`` rows at ``fs`` Hz (1: no binning), and what limited it.
+
+    Diagnose fits slow effects; above :data:`BIN_MIN_ROWS` rows, means of consecutive rows keep what
+    the vocabulary can see while the fits get k times fewer rows (the white noise of a k-row mean is
+    still white, with variance σ²/k, so the held-out statistics stay valid). The bin is the longest of
+
+    * :data:`BIN_MAX_S`;
+    * with a reference rate: :data:`BIN_PER_PERIOD` bins per period of the highest table-angle
+      harmonic the gear term searches at the highest rate, 1/(N_max·max|ω|/360°)/4 (this also
+      keeps rate changes resolved for the time-skew and scale-factor terms);
+    * with a spectral line in ``response`` (gyro − reference, per axis) above 1/(4·bin) that carries
+      at least :data:`LINE_FRACTION` of the variance: 4 bins per period of the highest such line;
+
+    and no binning when that is less than two rows."""
+    if n <= BIN_MIN_ROWS or not math.isfinite(fs) or fs * BIN_MAX_S < 2:
+        return 1, ""
+    span, why = BIN_MAX_S, ""
+    w = max((float(np.max(np.abs(r))) for r in refs), default=0.0)
+    if w > 0:
+        from bench.analysis.diagnose.terms import GearEccentricity
+
+        f_gear = GearEccentricity.N_MAX * w / 360.0
+        if 1.0 / (BIN_PER_PERIOD * f_gear) < span:
+            span, why = 1.0 / (BIN_PER_PERIOD * f_gear), f"table-angle harmonic N ≤ {GearEccentricity.N_MAX} at {w:.3g} deg/s"
+    for a, r in response.items():
+        f_line = _highest_line(r, fs, 1.0 / (BIN_PER_PERIOD * span))
+        if f_line is not None and 1.0 / (BIN_PER_PERIOD * f_line) < span:
+            span, why = 1.0 / (BIN_PER_PERIOD * f_line), f"spectral line at {f_line:.4g} Hz on {a}"
+    k = int(math.floor(span * fs * (1.0 + 1e-6)))  # a median interval a hair over 1/fs must not lose a row
+    return (k, why) if k >= 2 else (1, "")
+
+
+def _highest_line(r: np.ndarray, fs: float, f_min: float) -> float | None:
+    """Frequency (Hz) of the highest spectral line of ``r`` above ``f_min`` that carries at least
+    :data:`LINE_FRACTION` of its variance, None when there is none. Averaged periodogram of
+    1024-row segments (each detrended, Hann window); a line's power is its excess over a running
+    median of the spectrum summed over ±2 bins (its leakage)."""
+    from scipy.ndimage import median_filter
+
+    m = 1024
+    segs = r.shape[0] // m
+    if segs < 4:
+        return None
+    x = r[: segs * m].reshape(segs, m)
+    u = np.linspace(-1.0, 1.0, m)
+    x = x - x.mean(axis=1, keepdims=True)
+    x = x - np.outer(x @ u / (u @ u), u)
+    win = np.hanning(m)
+    spec = np.fft.rfft(x * win, axis=1)
+    s = np.mean(spec.real ** 2 + spec.imag ** 2, axis=0)
+    f = np.fft.rfftfreq(m, 1.0 / fs)
+    total = float(np.sum(s))
+    if total <= 0:
+        return None
+    floor = median_filter(s, size=31, mode="nearest")
+    excess = np.maximum(s - floor, 0.0)
+    power = np.convolve(excess, np.ones(5), mode="same")
+    peak = (s >= np.roll(s, 1)) & (s >= np.roll(s, -1))
+    hits = np.nonzero((f > f_min) & peak & (power >= LINE_FRACTION * total))[0]
+    if not hits.size:
+        return None
+    i = int(hits[-1])
+    near = slice(max(i - 2, 0), i + 3)
+    return float(np.dot(f[near], excess[near]) / np.sum(excess[near]))  # between the periodogram's bins
+
+
+def _bin_means(t: np.ndarray, cols: dict[str, np.ndarray], k: int, fs: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Means of consecutive rows in bins of ``k`` sample intervals on the time grid (a gap starts a new
+    bin; bins with fewer than k/2 rows, at gaps and at the end, are dropped). Time is the bin's mean
+    time; the table angle is averaged unwrapped (then taken mod 360)."""
+    dt = 1.0 / fs
+    b = np.floor((t - t[0] + 0.5 * dt) / (k * dt)).astype(np.int64)
+    starts = np.flatnonzero(np.concatenate([[True], b[1:] != b[:-1]]))
+    counts = np.diff(np.append(starts, t.size))
+    keep = 2 * counts >= k
+
+    def mean(v: np.ndarray) -> np.ndarray:
+        return (np.add.reduceat(v, starts) / counts)[keep]
+
+    out = {}
+    for name, v in cols.items():
+        if name == "table_angle_deg":
+            out[name] = mean(np.degrees(np.unwrap(np.radians(v)))) % 360.0
+        else:
+            out[name] = mean(v)
+    return mean(t), out
 
 
 def _table_axis(p: Prepared) -> str | None:

@@ -12,9 +12,10 @@ rows only),
   inflation of the candidate model's held-out residual summed over blocks (1 for white noise;
   large when the candidate leaves correlated structure, so a term that only partly explains a
   structure earns little evidence);
-* it is material: the held-out RMS drops by at least :data:`GAIN_MIN` (relative), or, for a named
-  cause, the evidence is overwhelming (ΔIC < −:data:`IC_STRONG`) and the residual left is white
-  (φ ≤ :data:`PHI_WHITE`).
+* it is material: the held-out RMS drops by at least :data:`GAIN_MIN` (relative), per sample or
+  on the band where slow effects live (the RMS of the held-out residual's block means, blocks of
+  ``Blocks.length`` rows): an effect far below one sample's noise but far above the noise of long
+  averages is judged on those averages.
 
 The t statistic of the per-block improvements is reported as evidence but not required: effects
 confined to a part of the session (warm-up, rate ramps) improve few blocks.
@@ -29,11 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from bench.analysis.progress import each
 from bench.analysis.diagnose.cv import CVFit, SparseHat, augment, cv_fit
 from bench.analysis.diagnose.data import Blocks, Prepared
 from bench.analysis.diagnose.terms import AXES, CANDIDATES, Built, Candidate, Context, lagged_temp
@@ -42,20 +44,45 @@ IC_MIN = 10.0
 """Required drop of the cross-validated information criterion (log-likelihood units; 10 is
 "very strong" evidence on the Kass-Raftery scale)."""
 GAIN_MIN = 0.01
-"""Required relative drop of the held-out RMS (1 %): below it the baseline already explains the data
-(unless the evidence is overwhelming and complete, see :data:`IC_STRONG`)."""
-IC_STRONG = 100.0
-"""A named cause with ΔIC < −100 that leaves a white residual (φ ≤ :data:`PHI_WHITE`) is material
-even below :data:`GAIN_MIN`: a short transient (a one-minute warm-up in an hour at 10 Hz) moves the
-whole-session RMS by less than 1 % but is certain and explains its part of the data completely."""
-PHI_WHITE = 1.2
+"""Required relative drop of the held-out RMS (1 %), per sample or on the block-mean band: below it
+the model already explains the data (reported gains are never below it)."""
 
 
-def material(d_ic: float, gain: float, phi: float, named: bool = True) -> bool:
-    """The acceptance rule: enough evidence and a material gain (module docstring)."""
-    if not d_ic < -IC_MIN:
-        return False
-    return gain >= GAIN_MIN or (named and d_ic < -IC_STRONG and phi <= PHI_WHITE and gain > 0)
+BAND_T = 3.0
+"""A gain on the block-mean band counts only when the blocks agree on it: the paired t statistic of
+the per-block drop of the squared block mean is at least this (120 blocks of white noise move the
+band RMS by ±6 % by chance)."""
+
+
+def material(d_ic: float, gain: float, gain_band: float, band_t: float = 0.0) -> bool:
+    """The acceptance rule: enough evidence (ΔIC < −IC_MIN) and a material gain: the held-out RMS
+    drops by at least GAIN_MIN per sample or, consistently over the blocks (t ≥ :data:`BAND_T`), on
+    the block-mean band (module docstring)."""
+    return d_ic < -IC_MIN and (gain >= GAIN_MIN or (gain_band >= GAIN_MIN and band_t >= BAND_T))
+
+
+def block_means(sums: np.ndarray, blocks: Blocks) -> np.ndarray:
+    """Block means (deg/s) from per-block sums."""
+    lengths = np.minimum(blocks.length, blocks.n - np.arange(blocks.count) * blocks.length).astype(float)
+    return sums / lengths
+
+
+def band_rms(sums: dict[str, np.ndarray], blocks: Blocks) -> float:
+    """RMS (deg/s) of the held-out residual's block means over the axes given (sums per block)."""
+    tot = sum(float(np.sum(block_means(s, blocks) ** 2)) for s in sums.values())
+    return math.sqrt(tot / max(len(sums) * blocks.count, 1))
+
+
+def band_gain(old: dict[str, np.ndarray], new: dict[str, np.ndarray], blocks: Blocks) -> tuple[float, float, float, float]:
+    """(relative drop of the block-mean RMS, RMS before, RMS after, paired t statistic of the per-block
+    drop of the squared block mean) from per-block held-out sums."""
+    before, after = band_rms(old, blocks), band_rms(new, blocks)
+    if before <= 0:
+        return 0.0, before, after, 0.0
+    d = np.concatenate([block_means(old[a], blocks) ** 2 - block_means(new[a], blocks) ** 2 for a in old])
+    sd = float(np.std(d, ddof=1)) if d.size > 1 else 0.0
+    t = float(np.mean(d)) / (sd / math.sqrt(d.size)) if sd > 0 else 0.0
+    return 1.0 - after / before, before, after, t
 MAX_TERMS = 8
 """Most terms added by the forward search."""
 T_REF_SCALE_C = 30.0
@@ -281,19 +308,26 @@ class Evaluation:
     """ΔIC with φ = 1 (all rows independent)."""
     resolved: bool = True
     """False when a parameter that must be resolved sits at the top of its grid."""
+    gain_band: float = 0.0
+    """Relative drop of the RMS of held-out block means (the slow band)."""
+    band_before: float = 0.0
+    band_after: float = 0.0
+    band_t: float = 0.0
 
     @property
     def acceptable(self) -> bool:
-        return self.resolved and material(self.d_ic, self.gain, self.phi, not self.cand.select_by_cv)
+        return self.resolved and material(self.d_ic, self.gain, self.gain_band, self.band_t)
 
     @property
     def acceptable_raw(self) -> bool:
-        return self.resolved and material(self.d_ic_raw, self.gain, 1.0, False)
+        return self.resolved and material(self.d_ic_raw, self.gain, self.gain_band, self.band_t)
 
     def row(self) -> dict[str, Any]:
         return {"effect": self.cand.name, "axis": self.axis, "d_ic": self.d_ic, "t": self.t, "gain": self.gain,
-                "rms_before": self.rms_before, "rms_after": self.rms_after, "df": self.df, "phi": self.phi, "d_ic_raw": self.d_ic_raw, "resolved": self.resolved,
-                "acceptable": self.acceptable, "nl": dict(self.nl_full)}
+                "gain_band": self.gain_band, "band_t": self.band_t, "rms_before": self.rms_before, "rms_after": self.rms_after,
+                "band_before": self.band_before, "band_after": self.band_after, "df": self.df, "phi": self.phi,
+                "d_ic_raw": self.d_ic_raw, "resolved": self.resolved, "acceptable": self.acceptable,
+                "nl": dict(self.nl_full)}
 
 
 
@@ -366,7 +400,7 @@ def evaluate(p: Prepared, state: State, cand: Candidate, axis: str, ctx: Context
         return None
     axes = runs[0][1].axes
     w = {a: 1.0 / max(state.axes[a].mse, 1e-30) for a in axes}
-    if cand.refine and len(grid) > 1:
+    if cand.refine and (len(grid) > 1 or cand.refine_interval(p, cand.refine[0][0], 1.0) is not None):
         # continuous parameters: refine the whole-data optimum between its grid neighbours and
         # offer it to every fold next to the grid values
         full = [sum(w[a] * f[a].sse_full for a in axes) for _, _, f in runs]
@@ -413,6 +447,7 @@ def evaluate(p: Prepared, state: State, cand: Candidate, axis: str, ctx: Context
     before = state.rms(axes)
     after = math.sqrt(sum(float(hold[a].sum()) for a in axes) / (n * len(axes)))
     d_ic_raw = loglik + df * math.log(n * len(axes))
+    gain_band, band_before, band_after, band_t = band_gain({a: state.axes[a].fit.sum_block for a in axes}, hsum, p.blocks)
     nl_full = dict(runs[g_full][0])
     resolved = True
     for name in cand.resolved if searched else ():
@@ -420,12 +455,12 @@ def evaluate(p: Prepared, state: State, cand: Candidate, axis: str, ctx: Context
         if top is not None and nl_full.get(name, 0.0) >= 0.99 * top:
             resolved = False
     return Evaluation(cand, axis, axes, hold, nl_full, d_ic, t, 1.0 - after / before, before, after, df, phi,
-                      d_ic_raw, resolved)
+                      d_ic_raw, resolved, gain_band, band_before, band_after, band_t)
 
 
-def compare(p: Prepared, old: State, new: State, axes: list[str], df: float) -> tuple[float, float, float]:
-    """(ΔIC, relative held-out RMS gain, φ) of model ``new`` against ``old`` on ``axes``, by the
-    rule of :func:`evaluate` (``df`` added parameters)."""
+def compare(p: Prepared, old: State, new: State, axes: list[str], df: float) -> tuple[float, float, float, float, float]:
+    """(ΔIC, relative held-out RMS gain, φ, relative block-mean RMS gain, its t statistic) of model
+    ``new`` against ``old`` on ``axes``, by the rule of :func:`evaluate` (``df`` added parameters)."""
     w = {a: 1.0 / max(old.axes[a].mse, 1e-30) for a in axes}
     hold = {a: new.axes[a].fit.sse_block for a in axes}
     sums = {a: new.axes[a].fit.sum_block for a in axes}
@@ -433,7 +468,8 @@ def compare(p: Prepared, old: State, new: State, axes: list[str], df: float) -> 
     n = p.n
     loglik = sum(n * math.log(max(new.axes[a].fit.sse, 1e-300) / max(old.axes[a].fit.sse, 1e-300)) for a in axes)
     d_ic = loglik / phi + max(df, 1.0) * math.log(n * len(axes) / phi)
-    return d_ic, 1.0 - new.rms(axes) / old.rms(axes), phi
+    g_band, _, _, band_t = band_gain({a: old.axes[a].fit.sum_block for a in axes}, sums, p.blocks)
+    return d_ic, 1.0 - new.rms(axes) / old.rms(axes), phi, g_band, band_t
 
 
 INFLATION_SCALES = (1, 2, 4, 8)
@@ -494,11 +530,17 @@ def refine(p: Prepared, state: State, cand: Candidate, axis: str, nl: dict[str, 
     grid = cand.grid(p, axis, ctx) if grid is None else grid
     nl = dict(nl)
     for name, log in cand.refine:
-        vals = sorted({g[name] for g in grid if name in g})
-        if len(vals) < 2 or name not in nl:
+        if name not in nl:
             continue
-        i = vals.index(nl[name]) if nl[name] in vals else int(np.argmin([abs(v - nl[name]) for v in vals]))
-        lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+        bounds = cand.refine_interval(p, name, float(nl[name]))
+        if bounds is None:
+            vals = sorted({g[name] for g in grid if name in g})
+            if len(vals) < 2:
+                continue
+            i = vals.index(nl[name]) if nl[name] in vals else int(np.argmin([abs(v - nl[name]) for v in vals]))
+            lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+        else:
+            lo, hi = bounds
         built0 = cand.build(p, axis, nl, ctx)
         w = {a: 1.0 / max(state.axes[a].mse, 1e-30) for a in built0.axes}
 
@@ -551,9 +593,9 @@ def lookahead(p: Prepared, base_terms: list[Term], found: list[Term], state: Sta
         cur = build_state(p, base_terms + trial_found)
         axes |= set(trial_found[-1].built.axes)
         df += e.df
-        d_ic, gain, phi = compare(p, state, cur, sorted(axes, key=AXES.index), df)
-        if material(d_ic, gain, phi) and d_ic < (to_beat if best is None else best[0]):
-            trial_found[-1].evidence.update({"d_ic": d_ic, "gain": gain, "phi": phi})
+        d_ic, gain, phi, gain_band, band_t = compare(p, state, cur, sorted(axes, key=AXES.index), df)
+        if material(d_ic, gain, gain_band, band_t) and d_ic < (to_beat if best is None else best[0]):
+            trial_found[-1].evidence.update({"d_ic": d_ic, "gain": gain, "phi": phi, "gain_band": gain_band})
             best = (d_ic, [_copy(t) for t in trial_found], cur)
         if step + 1 < steps:
             taken = {t.key for t in trial_found}
@@ -608,11 +650,13 @@ class Search:
     dropped: list[dict[str, Any]]
 
 
-def candidate_list(p: Prepared, exclude: set[tuple[str, str]]) -> tuple[list[tuple[Candidate, str]], dict[str, str]]:
-    """(candidate, axis) pairs to try, and why others cannot be seen in these data."""
+def candidate_list(p: Prepared, exclude: set[tuple[str, str]],
+                   hidden: frozenset[str] = frozenset()) -> tuple[list[tuple[Candidate, str]], dict[str, str]]:
+    """(candidate, axis) pairs to try (regressors: not the noise terms, not the ``hidden`` names),
+    and why others cannot be seen in these data."""
     out, why = [], {}
     for cand in CANDIDATES.values():
-        if cand.missing(p):
+        if cand.noise_term or cand.name in hidden or cand.missing(p):
             continue
         for ax in cand.candidate_axes(p):
             if (cand.name, ax) in exclude or (cand.name, "all") in exclude:
@@ -625,8 +669,10 @@ def candidate_list(p: Prepared, exclude: set[tuple[str, str]]) -> tuple[list[tup
     return out, why
 
 
-def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> Search:
-    """Forward selection then backward elimination (module docstring)."""
+def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS,
+           hidden: frozenset[str] = frozenset(), progress: Callable[[str], None] | None = None) -> Search:
+    """Forward selection then backward elimination (module docstring); ``hidden`` vocabulary
+    names are not searched; ``progress`` is told each candidate evaluated."""
     base = build_state(p, base_terms)
     state = base
     rounds: list[list[dict[str, Any]]] = []
@@ -634,10 +680,11 @@ def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> S
     found: list[Term] = []
     not_excited: dict[str, str] = {}
     for _ in range(max_terms):
-        cands, why = candidate_list(p, exclude | {t.key for t in found})
+        cands, why = candidate_list(p, exclude | {t.key for t in found}, hidden)
         not_excited.update(why)
         ctx = state.context()
-        evals = [e for c, ax in cands if (e := evaluate(p, state, c, ax, ctx)) is not None]
+        evals = [e for c, ax in each(cands, progress, f"round {len(rounds) + 1}/{max_terms}, candidates")
+                 if (e := evaluate(p, state, c, ax, ctx)) is not None]
         rounds.append([e.row() for e in sorted(evals, key=lambda e: e.d_ic)])
         ok = [e for e in evals if e.acceptable]
         if not ok:
@@ -655,7 +702,8 @@ def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> S
             continue
         nl = best.nl_full
         term = Term(best.cand.name, best.axis, nl, best.cand.build(p, best.axis, nl, ctx),
-                    evidence={"d_ic": best.d_ic, "t": best.t, "gain": best.gain, "phi": best.phi})
+                    evidence={"d_ic": best.d_ic, "t": best.t, "gain": best.gain, "phi": best.phi,
+                              "gain_band": best.gain_band})
         found.append(term)
         if len(found) > 1:
             polish(p, base_terms, found)
@@ -664,6 +712,8 @@ def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> S
             state = add_term(p, state, term)
     # backward elimination: each term against the best model without it (the others re-fitted in
     # its absence), the catch-all random walk first
+    if progress is not None and found:
+        progress(f"backward elimination of {len(found)} terms")
     dropped: list[dict[str, Any]] = []
     changed = True
     while changed and found:
@@ -676,15 +726,20 @@ def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> S
             if others:
                 polish(p, base_terms, others)
             reduced = build_state(p, base_terms + others)
-            d_ic, gain, phi = compare(p, reduced, full, term.built.axes, term_df(term))
-            if not material(d_ic, gain, phi, not CANDIDATES[term.effect].select_by_cv):
+            d_ic, gain, phi, gain_band, band_t = compare(p, reduced, full, term.built.axes, term_df(term))
+            if not material(d_ic, gain, gain_band, band_t):
                 dropped.append({"effect": term.effect, "axis": term.axis, "d_ic": d_ic, "gain": gain, "phi": phi,
-                                "nl": dict(term.nl)})
+                                "gain_band": gain_band, "nl": dict(term.nl), "reason": "no longer material"})
                 found = others
                 changed = True
                 break
-            term.evidence.update({"d_ic": d_ic, "gain": gain, "phi": phi})
-    # final sequence with before/after states
+            term.evidence.update({"d_ic": d_ic, "gain": gain, "phi": phi, "gain_band": gain_band})
+    seq, state = sequence(p, base, found)
+    return Search(base, state, seq, rounds, not_excited, dropped)
+
+
+def sequence(p: Prepared, base: State, found: list[Term]) -> tuple[list[tuple[Term, State, State]], State]:
+    """(term, state before, state after) for each found term in order, and the final state."""
     seq = []
     state = base
     for term in found:
@@ -693,4 +748,4 @@ def search(p: Prepared, base_terms: list[Term], max_terms: int = MAX_TERMS) -> S
         after = add_term(p, state, term)
         seq.append((term, state, after))
         state = after
-    return Search(base, state, seq, rounds, not_excited, dropped)
+    return seq, state

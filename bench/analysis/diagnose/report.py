@@ -104,16 +104,18 @@ def _render(result: DiagnoseResult, p: Prepared, s: Search) -> str:
         + f'<p class="note">{result.rows} rows at {result.sample_rate_hz:.4g} Hz from {esc(result.source)}; '
           f"{p.blocks.count} contiguous blocks of {p.blocks.length / p.fs:.4g} s dealt to {p.blocks.folds} folds. "
           f"Acceptance: ΔIC &lt; −{IC_MIN:g} (effective-rows information criterion on held-out error) and held-out "
-          f"RMS gain ≥ {100 * GAIN_MIN:g} %.</p>"))
+          f"RMS gain ≥ {100 * GAIN_MIN:g} % per sample or on the {result.band_s:.4g}-s block means (consistent over "
+          f"blocks), then the open-world checks (docs/diagnose.md, Method 6).</p>"))
 
     # findings
     if result.findings:
         frows = []
         for f in result.findings:
             ev = f.evidence
-            frows.append([f.effect, f.axis, _fmt_params(f.params), f.rms_before, f.rms_after, f.gain,
+            frows.append([f.effect, f.axis, _fmt_params(f.params), f.rms_before, f.rms_after, f.gain, f.gain_band,
                           ev.get("d_ic", float("nan")), ev.get("phi", float("nan")), ev.get("t", float("nan"))])
-        body = table(["effect", "axis", "parameters", "RMS before", "RMS after", "gain", "ΔIC", "φ", "t"], frows, left=3)
+        body = table(["effect", "axis", "parameters", "RMS before", "RMS after", "gain", "gain on block means", "ΔIC",
+                      "φ", "t"], frows, left=3)
         for (term, before, after), f in zip(s.sequence, result.findings):
             axes = term.built.axes
             fig, axs = plt.subplots(1, len(axes), figsize=(5.2 * len(axes), 3.4), squeeze=False)
@@ -142,6 +144,36 @@ def _render(result: DiagnoseResult, p: Prepared, s: Search) -> str:
         sections.append(("Findings", body))
     else:
         sections.append(("Findings", "<p>No missing effect: no candidate passed the selection rule.</p>"))
+
+    # unexplained structure
+    if result.unexplained:
+        urows = []
+        for u in result.unexplained:
+            for w in u["where"]:
+                urows.append([u["axis"], w["against"] + (f" ({w['frequency_hz']:.4g} Hz)" if "frequency_hz" in w else ""),
+                              w["rms_dps"], w["band_rms_dps"], w["d_ic"]])
+        body = ("<p>Structure left after selection that no vocabulary term names: a generic probe (a smooth "
+                "function of the covariate named) explains held-out data by the candidates' own rule. The engine "
+                "says so rather than give a weak name.</p>"
+                + "".join(f"<p>{esc(result.unexplained_line(u))}</p>" for u in result.unexplained)
+                + table(["axis", "lives against", "size per sample (deg/s)", f"size on {result.band_s:.4g}-s means (deg/s)",
+                         "ΔIC"], urows, left=2))
+        fig, axs = plt.subplots(len(result.unexplained), 1, figsize=(10, 2.6 * len(result.unexplained)), squeeze=False)
+        for ax, u in zip(axs[:, 0], result.unexplained):
+            a = u["axis"]
+            L = p.blocks.length
+            r = res_e[a]
+            m = p.blocks.shaped(r)[:, :, 0].sum(axis=1) / np.minimum(L, p.n - np.arange(p.blocks.count) * L)
+            tb = p.blocks.shaped(p.t)[:, :, 0].sum(axis=1) / np.minimum(L, p.n - np.arange(p.blocks.count) * L)
+            ax.plot(tb, m, ".-", ms=3, lw=0.8)
+            ax.set_ylabel(f"{a} block mean (deg/s)")
+            ax.set_xlabel("time (s)")
+            ax.grid(alpha=0.3)
+        body += figure_png(fig, "Held-out residual of the extended model, block means, on the axes with unexplained structure")
+        sections.append(("Unexplained", body))
+    else:
+        sections.append(("Unexplained", "<p>Nothing left: no generic probe finds structure in the residual of the "
+                                        "extended model.</p>"))
 
     # residuals before/after
     fig, axs = plt.subplots(len(p.axes), 1, figsize=(10, 2.6 * len(p.axes)), sharex=True, squeeze=False)
@@ -218,8 +250,8 @@ def _render(result: DiagnoseResult, p: Prepared, s: Search) -> str:
         body += table(["effect", "axis", "ΔIC", "gain", "φ", "t", "acceptable", "nonlinear"], rows,
                       title=f"Round {i + 1}", left=2)
     if result.dropped:
-        body += table(["effect", "axis"], [[d["effect"], d["axis"]] for d in result.dropped],
-                      title="Dropped by backward elimination", left=2)
+        body += table(["effect", "axis", "why"], [[d["effect"], d["axis"], d.get("reason", "")] for d in result.dropped],
+                      title="Dropped (backward elimination and open-world checks)", left=3)
     sections.append(("Candidates", body))
 
     extra = ""

@@ -30,9 +30,16 @@ class Finding:
     def gain(self) -> float:
         return self.rms_before / self.rms_after if self.rms_after > 0 else float("inf")
 
+    @property
+    def gain_band(self) -> float:
+        """Ratio of the held-out block-mean RMS before/after (the band slow effects live in)."""
+        g = self.evidence.get("gain_band")
+        return 1.0 / (1.0 - g) if g is not None and g < 1 else float("inf") if g is not None else float("nan")
+
     def as_json(self) -> dict[str, Any]:
         return {"effect": self.effect, "axis": self.axis, "params": self.params,
-                "rms_before": self.rms_before, "rms_after": self.rms_after, "gain": self.gain}
+                "rms_before": self.rms_before, "rms_after": self.rms_after, "gain": self.gain,
+                "gain_band": _num(self.gain_band), "evidence": _plain(_evidence(self.evidence))}
 
     def as_effect(self) -> dict[str, Any]:
         """The entry of a sensor model's ``effects:`` list."""
@@ -68,6 +75,11 @@ class DiagnoseResult:
     rounds: list[list[dict[str, Any]]] = field(default_factory=list)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     fixed_terms: list[str] = field(default_factory=list)
+    unexplained: list[dict[str, Any]] = field(default_factory=list)
+    """Structure left after selection that no vocabulary term names: per axis, its size (deg/s, per
+    sample and on the block-mean band) and where it lives (``openworld.py``)."""
+    band_s: float = float("nan")
+    """Length of the blocks whose means form the slow band (s)."""
     structure: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict, repr=False)
     """``structure[stage][axis]`` for stage baseline/extended: the held-out residual's covariate
     correlations, Allan deviation vs white noise, spectra (``structure.analyse``)."""
@@ -79,7 +91,9 @@ class DiagnoseResult:
         return {
             "axes": {a: {"rms_baseline": v["rms_baseline"], "rms_extended": v["rms_extended"]} for a, v in self.axes.items()},
             "findings": [f.as_json() for f in self.findings],
+            "unexplained": _plain(self.unexplained),
             "skipped": list(self.skipped),
+            "band_s": _num(self.band_s),
         }
 
     def summary_lines(self) -> list[str]:
@@ -89,17 +103,21 @@ class DiagnoseResult:
             mine = [f for f in self.findings if f.axis == a]
             shared = [f for f in self.findings if f.axis == "all"]
             head = f"{a}: baseline residual {v['rms_baseline']:.2g} deg/s"
+            left = [u for u in self.unexplained if u["axis"] == a]
             if not mine and not shared:
                 floor = self.noise_floor.get(a)
                 fl = f", noise floor {floor:.2g} deg/s" if floor else ""
-                lines.append(f"{head} held-out{fl}: nothing missing")
+                lines.append(f"{head} held-out{fl}: " + ("no named effect" if left else "nothing missing"))
+                lines += [self.unexplained_line(u) for u in left]
                 continue
             parts = [head] + [f"missing effect {f.effect}: {f.describe()}" for f in mine]
             if shared:
                 parts.append("with " + ", ".join(f.effect for f in shared) + " (all axes)")
             ratio = v["rms_baseline"] / v["rms_extended"] if v["rms_extended"] > 0 else float("inf")
-            parts.append(f"extended model {v['rms_extended']:.2g} deg/s held-out ({ratio:.1f}x)")
+            parts.append(f"extended model {v['rms_extended']:.2g} deg/s held-out ({ratio:.2f}x per sample"
+                         + _band_text(mine) + ")")
             lines.append("; ".join(parts))
+            lines += [self.unexplained_line(u) for u in left]
         for a in self.axes:
             line = self.structure_line(a)
             if line:
@@ -108,12 +126,22 @@ class DiagnoseResult:
             if f.axis == "all":
                 lines.append(f"all axes: missing effect {f.effect}: {f.describe()}; held-out RMS "
                              f"{f.rms_before:.2g} -> {f.rms_after:.2g} deg/s ({f.gain:.1f}x)")
-        if not self.findings:
+        if not self.findings and not self.unexplained:
             lines.append("nothing missing: the baseline model explains the data down to the noise")
         if self.skipped:
             lines.append("skipped (columns absent): " + ", ".join(
                 f"{s} ({', '.join(self.skipped_reasons.get(s, []))})" for s in self.skipped))
         return lines
+
+    def unexplained_line(self, u: dict[str, Any]) -> str:
+        """One line for an unexplained-structure entry."""
+        where = "; ".join(
+            f"{w['against']}"
+            + (f" at {w['frequency_hz']:.4g} Hz" if "frequency_hz" in w else "")
+            + f" ({w['rms_dps']:.2g} deg/s per sample, {w['band_rms_dps']:.2g} deg/s on {self.band_s:.0f}-s means)"
+            for w in u["where"])
+        return (f"{u['axis']}: UNEXPLAINED structure the vocabulary does not name: {u['rms_dps']:.2g} deg/s "
+                f"of the {u['residual_rms_dps']:.2g} deg/s held-out residual; lives against {where}")
 
     def structure_line(self, axis: str, stage: str = "baseline") -> str | None:
         """What the residual of ``stage`` on ``axis`` correlates with, when it is not white noise:
@@ -152,6 +180,21 @@ class DiagnoseResult:
         out["schema"] = SCHEMA
         out["effects"] = effects + [f.as_effect() for f in self.findings]
         return _plain(out)
+
+
+def _band_text(findings: list[Finding]) -> str:
+    bands = [f.gain_band for f in findings if math.isfinite(f.gain_band)]
+    return f", {max(bands):.2f}x on block means" if bands else ""
+
+
+def _num(v: float) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+def _evidence(ev: dict[str, Any]) -> dict[str, Any]:
+    keep = ("d_ic", "phi", "t", "d_ic_given_probe", "allan_excess_slope", "allan_tau_range_s", "increment_kurtosis",
+            "fitted_scale")
+    return {k: ev[k] for k in keep if k in ev}
 
 
 def _plain(v: Any) -> Any:

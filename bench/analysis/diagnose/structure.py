@@ -53,18 +53,14 @@ def correlations(r: np.ndarray, covs: dict[str, np.ndarray]) -> dict[str, float]
 
 
 def allan(r: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    """Overlapping Allan deviation of rate samples ``r`` (deg/s) at octave cluster times (s)."""
-    n = r.shape[0]
-    c = np.concatenate([[0.0], np.cumsum(r - r.mean())])
-    taus, dev = [], []
-    m = 1
-    while m <= n // 8:
-        avg = (c[m:] - c[:-m]) / m
-        d = avg[m:] - avg[:-m]
-        taus.append(m / fs)
-        dev.append(math.sqrt(0.5 * float(np.mean(d * d))))
-        m *= 2
-    return np.array(taus), np.array(dev)
+    """Overlapping Allan deviation of rate samples ``r`` (deg/s) at octave cluster times (s) up to
+    n/8 samples (``bench.analysis.allan``, the one home of the Allan deviation)."""
+    from bench.analysis.allan import octave_m, overlapping_adev
+
+    if r.shape[0] < 8:
+        return np.zeros(0), np.zeros(0)
+    res = overlapping_adev(r, fs, octave_m(r.shape[0], 8) / fs)
+    return res.taus_s, res.adev
 
 
 def psd(r: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:

@@ -64,6 +64,18 @@ class Candidate(ABC):
     resolved: tuple[str, ...] = ()
     """Nonlinear parameters that must come out below the top of their grid: a transient whose time
     constant is as long as the data allow is a drift, not an identified transient."""
+    family: str | None = None
+    """The generic probe (:data:`PROBES`) that can imitate this term: ``"time"`` for slow terms (any
+    slow structure), ``"rate"`` for static functions of the rate. A term whose family's probe still
+    finds structure after selection must be needed on top of that probe, or it is only a partial
+    explanation (``docs/diagnose.md``, specific evidence)."""
+    noise_term: bool = False
+    """Named from the Allan deviation of the residual (a random process), not fitted as a regressor."""
+
+    def refine_interval(self, p: Prepared, name: str, value: float) -> tuple[float, float] | None:
+        """Bounds for refining nonlinear parameter ``name`` around ``value`` (None: between the
+        neighbouring grid values)."""
+        return None
 
     def missing(self, p: Prepared) -> list[str]:
         """Columns or metadata this term needs that the data lack."""
@@ -132,6 +144,7 @@ class ThermalLag(Candidate):
     temperature (one parameter, τ); its coefficients become the effect's ``tempco_dps``."""
 
     name = "thermal_lag"
+    family = "time"
     nonlinear = ("tau_s",)
     refine = (("tau_s", True),)
 
@@ -168,6 +181,7 @@ def lagged_temp(p: Prepared, tau_s: float | None) -> np.ndarray:
 
 class WarmupTransient(Candidate):
     name = "warmup_transient"
+    family = "time"
     nonlinear = ("tau_s",)
     refine = (("tau_s", True),)
     resolved = ("tau_s",)
@@ -198,6 +212,7 @@ class WarmupTransient(Candidate):
 
 class PressureBias(Candidate):
     name = "pressure_bias"
+    family = "time"
     nonlinear = ("p0_torr",)
     refine = (("p0_torr", True),)
 
@@ -230,6 +245,7 @@ class PressureBias(Candidate):
 
 class GearEccentricity(Candidate):
     name = "gear_eccentricity"
+    family = "spectrum"
     nonlinear = ("harmonic", "phase_rad")
     N_MAX = 360
     SHORTLIST = 6
@@ -297,6 +313,7 @@ class GearEccentricity(Candidate):
 
 class GSensitivity(Candidate):
     name = "g_sensitivity"
+    family = "specific_force"
 
     def missing(self, p):
         return [] if p.accel is not None else ["accel_*_g"]
@@ -319,6 +336,7 @@ class GSensitivity(Candidate):
 
 class ScaleFactorAsymmetry(Candidate):
     name = "scale_factor_asymmetry"
+    family = "rate"
 
     def missing(self, p):
         return [] if p.ref is not None else ["ref_rate_*_dps"]
@@ -371,6 +389,7 @@ class ScaleFactorTempco(Candidate):
 
 class Hysteresis(Candidate):
     name = "hysteresis"
+    family = "time"
     nonlinear = ("deadband_c",)
     refine = (("deadband_c", True),)
     DEADBANDS = tuple(float(v) for v in np.geomspace(0.1, 3.0, 11))
@@ -505,9 +524,348 @@ class EarthRate(Candidate):
         return f"Earth rate at latitude {params['latitude_deg']:.1f}° not in the reference"
 
 
+class BiasStep(Candidate):
+    """A bias jump at one instant: H(t − t_step), the instant from the scan of the residual's
+    cumulative sum (the least-squares change point), its few best local maxima as the grid."""
+
+    name = "bias_step"
+    family = "time"
+    nonlinear = ("t_step_s",)
+    SHORTLIST = 4
+
+    def grid(self, p, axis, ctx):
+        r = ctx.resid[axis]
+        hit = p.cache.get(("step_scan", axis))
+        if hit is not None and hit[0] is r:
+            return hit[1]
+        n = r.shape[0]
+        c = np.cumsum(r - r.mean())[:-1]
+        k = np.arange(1, n)
+        stat = np.abs(c) / np.sqrt(k * (n - k) / n)
+        edge = max(p.blocks.length, 2)
+        stat[: edge] = 0.0
+        stat[-edge:] = 0.0
+        out = []
+        for _ in range(self.SHORTLIST):
+            i = int(np.argmax(stat))
+            if stat[i] <= 0:
+                break
+            out.append({"t_step_s": float(p.t[i + 1])})
+            stat[max(i - 2 * edge, 0): i + 2 * edge] = 0.0
+        p.cache[("step_scan", axis)] = (r, out)
+        return out
+
+    def build(self, p, axis, nl, ctx):
+        col = _cached(p, ("step", float(nl["t_step_s"])), lambda: (p.t >= nl["t_step_s"]).astype(float)[:, None])
+        return Built(cols={axis: col})
+
+    def params(self, p, axis, nl, coef):
+        return {"step_dps": float(coef[axis][0]), "t_step_s": float(nl["t_step_s"])}
+
+    def describe(self, params):
+        return f"bias steps by {params['step_dps']:+.2g} deg/s at t = {params['t_step_s']:.0f} s"
+
+
+class Periodic(Candidate):
+    """Periodic interference A·sin(2πft + φ): f from the highest peaks of the residual's periodogram
+    (at least two cycles in the data, below 0.45·f_s), refined within half a periodogram bin."""
+
+    name = "periodic"
+    family = "angle_rate"
+    nonlinear = ("frequency_hz", "phase_rad")
+    refine = (("frequency_hz", False),)
+    SHORTLIST = 4
+
+    def grid(self, p, axis, ctx):
+        r = ctx.resid[axis]
+        hit = p.cache.get(("periodogram", axis))
+        if hit is not None and hit[0] is r:
+            return hit[1]
+        f, power = periodogram(r, p.fs)
+        ok = (f >= 2.0 / p.duration_s) & (f <= 0.45 * p.fs)
+        power = np.where(ok, power, 0.0)
+        out = []
+        for _ in range(self.SHORTLIST):
+            i = int(np.argmax(power))
+            if power[i] <= 0:
+                break
+            out.append({"frequency_hz": float(f[i])})
+            power[max(i - 3, 0): i + 4] = 0.0
+        p.cache[("periodogram", axis)] = (r, out)
+        return out
+
+    def refine_interval(self, p, name, value):
+        half = 0.5 / p.duration_s
+        return (max(value - half, 1e-9), value + half)
+
+    def build(self, p, axis, nl, ctx):
+        f = float(nl["frequency_hz"])
+        def cols():
+            ph = 2.0 * math.pi * f * p.t
+            return np.column_stack([np.sin(ph), np.cos(ph)])
+        return Built(cols={axis: _cached(p, ("periodic", round(f, 12)), cols)})
+
+    def params(self, p, axis, nl, coef):
+        a, b = (float(v) for v in coef[axis])
+        return {"amplitude_dps": math.hypot(a, b), "frequency_hz": float(nl["frequency_hz"]), "phase_rad": math.atan2(b, a)}
+
+    def describe(self, params):
+        f = params["frequency_hz"]
+        return f"periodic interference {params['amplitude_dps']:.2g} deg/s at {f:.4g} Hz (period {1 / f:.4g} s)"
+
+
+def periodogram(r: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """Frequencies (Hz) and power of the mean-removed residual, zero-padded twice (half-bin steps)."""
+    n = r.shape[0]
+    nfft = 1 << int(math.ceil(math.log2(max(2 * n, 2))))
+    spec = np.fft.rfft(r - r.mean(), nfft)
+    return np.fft.rfftfreq(nfft, 1.0 / fs), (spec.real ** 2 + spec.imag ** 2)
+
+
+class ScaleFactorNonlinearity(Candidate):
+    """k2·ω² + k3·ω³ on the axis' reference rate (IEEE Std 1431)."""
+
+    name = "scale_factor_nonlinearity"
+    family = "rate"
+
+    def missing(self, p):
+        return [] if p.ref is not None else ["ref_rate_*_dps"]
+
+    def candidate_axes(self, p):
+        """The axis on the table: cross axes see rates only during tilt moves, too few levels to
+        tell a curve from a poorly learnt linear scale factor."""
+        ax = (p.table_axis or "").lstrip("+-")
+        return [ax] if ax in p.axes and p.rate_excited(ax) else []
+
+    def not_excited(self, p, axis):
+        r = np.abs(p.ref_axis(axis))
+        if float(np.max(r)) < 1.0 or np.unique(np.round(r[r > RATE_SIGN_DPS], 2)).size < 3:
+            return "fewer than three rate magnitudes above 1 deg/s"
+        return None
+
+    def build(self, p, axis, nl, ctx):
+        w = p.ref_axis(axis)
+        return Built(cols={axis: np.column_stack([w * w, w ** 3])})
+
+    def params(self, p, axis, nl, coef):
+        k2, k3 = (float(v) for v in coef[axis])
+        return {"quadratic_per_dps": k2, "cubic_per_dps2": k3}
+
+    def describe(self, params):
+        return (f"scale-factor nonlinearity {params['quadratic_per_dps']:+.2g}·ω² "
+                f"{params['cubic_per_dps2']:+.2g}·ω³ (deg/s)")
+
+
+class BiasInstability(Candidate):
+    """Flicker bias noise: named from a flat stretch (slope 0) of the residual's Allan deviation above
+    its white-noise line over at least a decade of τ (``bench/analysis/diagnose/noise.py``)."""
+
+    name = "bias_instability"
+    noise_term = True
+
+    def build(self, p, axis, nl, ctx):
+        return Built()
+
+    def params(self, p, axis, nl, coef):
+        return dict(nl)
+
+    def describe(self, params):
+        return (f"flicker bias noise B = {3600 * params['b_dps']:.3g} deg/h (Allan plateau "
+                f"{3600 * 0.664 * params['b_dps']:.3g} deg/h over τ = {params['tau_min_s']:.3g}-{params['tau_max_s']:.3g} s)")
+
+
 CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
     ThermalLag(), WarmupTransient(), PressureBias(), GearEccentricity(), GSensitivity(), ScaleFactorAsymmetry(),
-    ScaleFactorTempco(), Hysteresis(), TimeSkew(), RateRandomWalk(), EarthRate())}
-"""Every vocabulary term as a candidate, in vocabulary order."""
+    ScaleFactorTempco(), Hysteresis(), TimeSkew(), RateRandomWalk(), EarthRate(), BiasStep(), Periodic(),
+    ScaleFactorNonlinearity(), BiasInstability())}
+"""Every vocabulary term as a candidate, in vocabulary order (grown with :func:`register`)."""
 
 assert tuple(CANDIDATES) == fx.VOCABULARY
+
+
+def register(candidate: Candidate, params: type, forward: Callable[..., np.ndarray], needs: tuple[str, ...] = ()) -> None:
+    """Add a term to the vocabulary in one call: its forward model (``bench.model.effects.register``:
+    the simulator can inject it) and its candidate (diagnose searches it). ``candidate.name`` names it."""
+    fx.register(candidate.name, params, forward, needs)
+    CANDIDATES[candidate.name] = candidate
+
+
+# ---- generic probes: structure nobody has a name for ----------------------------------------------
+class _Hats:
+    """Linear-spline (hat) columns of a covariate on knots at its quantiles."""
+
+    @staticmethod
+    def columns(x: np.ndarray, knots: int) -> np.ndarray | None:
+        return _Hats.columns_at(x, np.unique(np.quantile(x, np.linspace(0.0, 1.0, knots))))
+
+    @staticmethod
+    def columns_at(x: np.ndarray, kn: np.ndarray) -> np.ndarray | None:
+        if kn.size < 3:
+            return None
+        j = np.clip(np.searchsorted(kn, x, side="right") - 1, 0, kn.size - 2)
+        w = np.clip((x - kn[j]) / (kn[j + 1] - kn[j]), 0.0, 1.0)
+        out = np.zeros((x.shape[0], kn.size))
+        rows = np.arange(x.shape[0])
+        out[rows, j] = 1.0 - w
+        out[rows, j + 1] += w
+        return out[:, 1:]  # the constant is in the baseline
+
+
+class Probe(Candidate):
+    """A generic flexible function of one covariate: finds structure without naming it."""
+
+    where = ""
+    """What the structure lives against (for the report)."""
+
+    def params(self, p, axis, nl, coef):
+        return dict(nl)
+
+
+class TimeProbe(RateRandomWalk):
+    """Any slow structure in time: the random-walk spline (smoothness chosen by held-out error)."""
+
+    name = "probe:time"
+    where = "time (slow drift, steps, wander)"
+
+
+class RateProbe(Probe):
+    name = "probe:rate"
+    where = "reference rate (static function of the rate)"
+    KNOTS = 12
+
+    def candidate_axes(self, p):
+        return [a for a in p.axes if p.rate_excited(a)]
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            w = p.ref_axis(axis)
+            # knots at the rates the table dwells at (≥ 1 % of the samples), so any static function
+            # of the rate is exact there, plus quantiles for the rates in between
+            vals, counts = np.unique(np.round(w, 2), return_counts=True)
+            dwell = vals[counts >= 0.01 * w.size]
+            knots = np.unique(np.concatenate([dwell, np.quantile(w, np.linspace(0.0, 1.0, self.KNOTS))]))
+            return _Hats.columns_at(w, knots)
+        z = _cached(p, ("hats_rate", axis), cols)
+        return Built(cols={axis: z}) if z is not None else Built()
+
+
+class TemperatureDirectionProbe(Probe):
+    """Different functions of temperature while heating and while cooling (a hysteresis loop, a
+    thermal lag, a gradient across the unit that reverses with the ramp)."""
+
+    name = "probe:temperature_direction"
+    where = "temperature, heating vs cooling"
+    KNOTS = 6
+
+    def candidate_axes(self, p):
+        return list(p.axes) if p.temp is not None and _temp_range(p) >= 2.0 else []
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            d = p.dtemp()
+            h = _Hats.columns(p.temp, self.KNOTS)
+            if h is None or d is None:
+                return None
+            scale = max(float(np.percentile(np.abs(d), 90)), 1e-9)
+            s = np.tanh(d / (0.2 * scale))  # +1 heating, −1 cooling, 0 soaking
+            return np.column_stack([h * s[:, None], s])
+        z = _cached(p, ("hats_tdir",), cols)
+        return Built(cols={axis: z}) if z is not None else Built()
+
+
+class PressureProbe(Probe):
+    name = "probe:pressure"
+    where = "pressure"
+    KNOTS = 8
+
+    def candidate_axes(self, p):
+        return list(p.axes) if p.pressure is not None and np.ptp(np.log10(p.pressure)) >= 1.0 else []
+
+    def build(self, p, axis, nl, ctx):
+        z = _cached(p, ("hats_p",), lambda: _Hats.columns(np.log10(p.pressure), self.KNOTS))
+        return Built(cols={axis: z}) if z is not None else Built()
+
+
+class SpectrumProbe(Periodic):
+    """A spectral line: a sinusoid at the residual's highest periodogram peaks."""
+
+    name = "probe:spectrum"
+    where = "a spectral line"
+    family = None
+
+
+class SpecificForceProbe(Probe):
+    """A smooth (second-order) function of the specific force direction in the sensor frame."""
+
+    name = "probe:specific_force"
+    where = "specific force (gravity direction)"
+
+    def candidate_axes(self, p):
+        return list(p.axes) if p.accel is not None and float(np.max(np.std(p.accel, axis=0))) >= 0.02 else []
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            f = p.accel
+            return np.column_stack([f, f * f, f[:, [0]] * f[:, [1]], f[:, [1]] * f[:, [2]], f[:, [0]] * f[:, [2]]])
+        return Built(cols={axis: _cached(p, ("probe_accel",), cols)})
+
+
+class RateDerivativeProbe(Probe):
+    """A function of the reference rate's derivative (a timing error, a filter, an angular
+    acceleration sensitivity)."""
+
+    name = "probe:rate_derivative"
+    where = "rate derivative (timing, filtering)"
+    KNOTS = 8
+
+    def candidate_axes(self, p):
+        if p.ref is None:
+            return []
+        return [a for a in p.axes if float(np.ptp(p.ref_axis(a))) > 0.05]
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            d = np.gradient(p.ref_axis(axis), p.t)
+            h = _Hats.columns(d, self.KNOTS)
+            return np.column_stack([d, h]) if h is not None else d[:, None]
+        return Built(cols={axis: _cached(p, ("probe_drate", axis), cols)})
+
+
+class AngleProbe(Probe):
+    """A function of the table angle (harmonics 1-3): what turns with the table but not with its rate
+    (Earth rate, a magnetic field, a tilted mount)."""
+
+    name = "probe:table_angle"
+    where = "table angle"
+
+    def candidate_axes(self, p):
+        if p.angle is None or float(np.ptp(np.unwrap(np.radians(p.angle)))) < 2 * math.pi:
+            return []
+        return list(p.axes)
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            th = np.radians(p.angle)
+            return np.column_stack([f(k * th) for k in (1, 2, 3) for f in (np.sin, np.cos)])
+        return Built(cols={axis: _cached(p, ("probe_angle",), cols)})
+
+
+class AngleRateProbe(GearEccentricity):
+    """Structure periodic in the table angle, proportional to the rate (harmonics from the spectrum)."""
+
+    name = "probe:angle_rate"
+    where = "table angle × rate (periodic in the angle)"
+    family = None
+
+    def params(self, p, axis, nl, coef):
+        return dict(nl)
+
+
+PROBES: dict[str, Candidate] = {c.name: c for c in (
+    TimeProbe(), RateProbe(), TemperatureDirectionProbe(), PressureProbe(), SpectrumProbe(), SpecificForceProbe(),
+    RateDerivativeProbe(), AngleProbe(), AngleRateProbe())}
+"""Generic probes, evaluated after selection like candidates: an acceptable one is structure left
+unexplained; ``"time"`` and ``"rate"`` also check the specific evidence of the named terms."""
+FAMILY_PROBE = {"time": "probe:time", "rate": "probe:rate", "specific_force": "probe:specific_force",
+                "spectrum": "probe:spectrum", "angle_rate": "probe:angle_rate"}
+"""A candidate's ``family`` -> the probe its specific evidence is checked against."""

@@ -1,0 +1,372 @@
+"""After selection: what the named terms may claim, the noise terms the Allan deviation shows, and the
+structure that nothing in the vocabulary names (``docs/diagnose.md``, "Open world").
+
+1. **Noise terms by their Allan slope.** A random walk absorbs any slow structure (a step, a drift,
+   a heating/cooling split), so ``rate_random_walk`` keeps its name only when the residual without it
+   has an Allan deviation whose excess over the white-noise line rises with slope +½ over at least a
+   decade of τ (:data:`DECADE`) and the fitted walk's increments look like a random walk's (no few
+   jumps carrying it, no common sign: :func:`walk_increments_ok`). ``bias_instability`` (flicker) is
+   named when the excess is flat (slope 0) over a decade.
+2. **Specific evidence.** A named term of a family (``"time"``: slow terms, ``"rate"``: static
+   functions of the rate) must still be needed when the family's generic probe is in the model,
+   whenever that probe finds structure the final model leaves: otherwise it is a partial explanation
+   of something else and is dropped (prefer "unexplained" over a weak name).
+3. **Unexplained.** Every generic probe (:data:`terms.PROBES`: a smooth function of time, of the rate,
+   of temperature by heating/cooling, of pressure, a spectral line) is evaluated on the final model
+   by the same held-out criterion as a candidate; one that is acceptable is structure left, reported
+   per axis with its size and where it lives.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from scipy import stats
+
+from bench.analysis.allan import overlapping_adev
+from bench.analysis.diagnose.data import Prepared
+from bench.analysis.diagnose.engine import State, Term, build_state, compare, evaluate, material, term_df
+from bench.analysis.diagnose.terms import CANDIDATES, FAMILY_PROBE, PROBES
+from bench.analysis.allan import FLICKER_FLOOR
+
+DECADE = 10.0
+"""A noise term is named only when its slope holds over at least this ratio of τ (one decade)."""
+SLOPE_TOL = 0.2
+"""Tolerance on the Allan-deviation slope of the excess (+½ random walk, 0 flicker)."""
+EXCESS_P = 1e-3
+"""Per-τ false-alarm probability for 'above the white-noise line' (chi-squared, white-FM edf)."""
+EXCESS_MIN = 1.1
+"""... and at least this ratio of Allan variances (a material excess, not a rounding of N)."""
+MIN_CLUSTERS = 4
+"""Fewest independent clusters (n/m) at a τ used for the slope."""
+KURTOSIS_MAX = 6.0
+"""A random walk's increments are Gaussian (kurtosis 3); a few jumps (a step, a split) give more."""
+RHO_MAX = 0.7
+"""... and nearly independent: lag-1 correlation of the fitted walk's increments below this (the
+penalty smooths a true walk to about 0.3; a smooth deterministic drift gives 0.9 and more)."""
+COINCIDE_RANGE = 0.05
+"""... and more than this fraction of the covariate's whole range (a steady slow trend is not a jump)."""
+PARTIAL_SHARE = 0.25
+"""A named term is a partial explanation when its family's probe still explains, on the final model,
+more than this share of the variance the term itself explains."""
+COINCIDE_SIGMA = 5.0
+"""A bias step coincides with a covariate when the covariate's change across the step (means of the
+blocks either side) exceeds this many of its typical block-to-block changes..."""
+
+
+@dataclass
+class Excess:
+    """The residual's Allan deviation against its white-noise line."""
+
+    taus_s: np.ndarray
+    adev: np.ndarray
+    white: np.ndarray
+    significant: np.ndarray
+    slope: float = float("nan")
+    """Slope of the excess deviation √(σ² − σ_white²) on log-log axes over the significant range."""
+    tau_range_s: tuple[float, float] | None = None
+    level_dps: float = float("nan")
+    """Excess deviation at the middle of the range (deg/s)."""
+
+    @property
+    def decades(self) -> float:
+        if self.tau_range_s is None:
+            return 0.0
+        return math.log10(self.tau_range_s[1] / self.tau_range_s[0])
+
+    def as_json(self) -> dict[str, Any]:
+        return {"slope": None if not math.isfinite(self.slope) else self.slope,
+                "tau_range_s": None if self.tau_range_s is None else list(self.tau_range_s),
+                "excess_dps": None if not math.isfinite(self.level_dps) else self.level_dps}
+
+
+def allan_excess(r: np.ndarray, fs: float) -> Excess:
+    """Overlapping Allan deviation of residual ``r`` (deg/s at ``fs`` Hz) against the white-noise
+    line N/√τ, N² the smallest σ²·τ of the first four octaves (where white noise dominates), the
+    τ where it lies significantly above (chi-squared at :data:`EXCESS_P` and :data:`EXCESS_MIN`), and
+    the log-log slope of the excess over the longest run of such τ that reaches the longest τ."""
+    al = overlapping_adev(r, fs)
+    taus, adev = al.taus_s, al.adev
+    n2 = float(np.min((adev[:4] ** 2) * taus[:4])) if taus.size else 0.0
+    white = np.sqrt(n2 / taus)
+    limit = stats.chi2.ppf(1.0 - EXCESS_P, al.edf) / al.edf
+    ratio = (adev / np.maximum(white, 1e-300)) ** 2
+    clusters = al.n_samples / al.m
+    sig = (ratio > np.maximum(limit, EXCESS_MIN)) & (clusters >= MIN_CLUSTERS)
+    out = Excess(taus, adev, white, sig)
+    idx = np.flatnonzero(sig)
+    if idx.size < 2:
+        return out
+    # the longest contiguous run of significant τ
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    run = max(runs, key=lambda r_: r_.size)
+    if run.size < 2:
+        return out
+    ex = np.sqrt(np.maximum(adev[run] ** 2 - white[run] ** 2, 1e-300))
+    w = np.sqrt(al.edf[run])
+    slope, _ = np.polyfit(np.log(taus[run]), np.log(ex), 1, w=w)
+    out.slope = float(slope)
+    out.tau_range_s = (float(taus[run[0]]), float(taus[run[-1]]))
+    out.level_dps = float(ex[run.size // 2])
+    return out
+
+
+def walk_increments_ok(coef: np.ndarray) -> tuple[bool, dict[str, float]]:
+    """Whether a fitted walk's knot values move like a random walk: increments with no common sign
+    (|mean| < 3 standard errors: not a drift), Gaussian tails (kurtosis ≤ :data:`KURTOSIS_MAX`: not
+    a few jumps) and nearly independent (lag-1 correlation < :data:`RHO_MAX`: not a smooth curve)."""
+    d = np.diff(np.asarray(coef, dtype=float))
+    if d.size < 8 or not np.any(d):
+        return False, {}
+    sd = float(np.std(d, ddof=1))
+    mean = float(np.mean(d))
+    kurt = float(stats.kurtosis(d, fisher=False))
+    rho = float(np.corrcoef(d[:-1], d[1:])[0, 1]) if np.std(d[:-1]) > 0 and np.std(d[1:]) > 0 else 1.0
+    drift = abs(mean) > 3.0 * sd / math.sqrt(d.size)
+    ok = not drift and kurt <= KURTOSIS_MAX and rho < RHO_MAX
+    return ok, {"increment_kurtosis": kurt, "increment_mean_sigmas": mean / (sd / math.sqrt(d.size)),
+                "increment_lag1_correlation": rho}
+
+
+def coincident_covariates(p: Prepared, t_step: float) -> list[str]:
+    """Measured covariates that change abruptly at ``t_step`` (s): pressure, temperature trend,
+    specific force, power cycles. A bias that moves with one of them is not a bias step."""
+    L = p.blocks.length
+    i = int(np.searchsorted(p.t, t_step))
+    covs: dict[str, np.ndarray] = {}
+    if p.pressure is not None:
+        covs["pressure"] = np.log10(p.pressure)
+    if p.temp is not None:
+        covs["temperature trend"] = p.dtemp()
+    if p.accel is not None:
+        # on a turning table only the component along its axis moves with the tilt; the others turn
+        # with the table angle all the time
+        axes = [p.table_axis.lstrip("+-")] if p.table_axis else ["x", "y", "z"]
+        for a in axes:
+            covs[f"specific force {a}"] = p.accel[:, "xyz".index(a)]
+    if p.power_on is not None:
+        covs["power-on time"] = p.power_on
+    out = []
+    for name, c in covs.items():
+        if i < L or i > p.n - L:
+            continue
+        change = abs(float(np.mean(c[i:i + L]) - np.mean(c[i - L:i])))
+        means = p.blocks.shaped(c)[:, :, 0].mean(axis=1)[: max(p.n // L, 2)]
+        typical = float(np.median(np.abs(np.diff(means)))) if means.size > 2 else 0.0
+        if change > max(COINCIDE_SIGMA * typical, COINCIDE_RANGE * float(np.ptp(c)), 1e-9):
+            out.append(name)
+    return out
+
+
+def _lives_in_time_only(p: Prepared, state: State, axis: str) -> tuple[bool, str]:
+    """Whether the slow structure of ``state``'s residual on ``axis`` is best explained by time
+    itself: the time probe beats every covariate probe by IC_MIN (else it lives against that
+    covariate and is not a random process of the sensor)."""
+    hits = {}
+    for name in PROBES:
+        hit = _probe_term(p, state, name, axis)
+        if hit is not None:
+            hits[name] = hit[1].d_ic
+    t = hits.pop("probe:time", 0.0)
+    rivals = {k: v for k, v in hits.items() if k != "probe:spectrum" and v < -10.0}
+    if not rivals:
+        return True, ""
+    best = min(rivals, key=rivals.get)
+    if t < rivals[best] - 10.0:
+        return True, ""
+    return False, f"the structure lives as well against {PROBES[best].where} (ΔIC {rivals[best]:+.0f} vs time {t:+.0f})"
+
+
+@dataclass
+class NoiseFinding:
+    """A noise term named from the Allan deviation: ``effect`` on ``axis`` with ``params`` and the
+    evidence (slope, τ range); ``rms_before``/``rms_after`` are the held-out RMS without and with the
+    time probe that the noise accounts for."""
+
+    effect: str
+    axis: str
+    params: dict[str, Any]
+    rms_before: float
+    rms_after: float
+    evidence: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class OpenWorld:
+    found: list[Term]
+    noise: list[NoiseFinding]
+    unexplained: list[dict[str, Any]]
+    dropped: list[dict[str, Any]]
+    excess: dict[str, Excess]
+
+
+def _without(found: list[Term], term: Term) -> list[Term]:
+    return [t for t in found if t is not term]
+
+
+def _probe_term(p: Prepared, state: State, name: str, axis: str) -> tuple[Term, Any] | None:
+    """The probe evaluated on ``state`` at ``axis`` and, when acceptable, as a model term."""
+    probe = PROBES[name]
+    if probe.missing(p) or axis not in probe.candidate_axes(p) or probe.not_excited(p, axis):
+        return None
+    ctx = state.context()
+    e = evaluate(p, state, probe, axis, ctx)
+    if e is None:
+        return None
+    return Term(name, axis, dict(e.nl_full), probe.build(p, axis, e.nl_full, ctx)), e
+
+
+def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: frozenset[str] = frozenset(),
+           progress: Callable[[str], None] | None = None) -> OpenWorld:
+    """Steps 1-3 of the module docstring on the terms ``found`` by the search."""
+    say = progress or (lambda _msg: None)
+    found = list(found)
+    dropped: list[dict[str, Any]] = []
+    noise: list[NoiseFinding] = []
+    excess: dict[str, Excess] = {}
+
+    # 1. the random walk keeps its name only on its own evidence
+    for term in [t for t in found if t.effect == "rate_random_walk" and not t.fixed]:
+        a = term.axis
+        say(f"open world: checking the random walk on {a}")
+        without = build_state(p, base_terms + _without(found, term))
+        ex = allan_excess(without.axes[a].resid(), p.fs)
+        full = build_state(p, base_terms + found)
+        idx = next(i for i, t in enumerate(full.terms) if t is term)
+        ok_inc, inc = walk_increments_ok(full.axes[a].coef(idx))
+        slope_ok = abs(ex.slope - 0.5) <= SLOPE_TOL and ex.decades >= 1.0
+        term.evidence.update({"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s, **inc})
+        in_time, where = _lives_in_time_only(p, without, a) if slope_ok and ok_inc else (True, "")
+        if slope_ok and ok_inc and in_time:
+            continue
+        why = [] if in_time else [where]
+        if not slope_ok:
+            why.append(f"Allan excess slope {ex.slope:+.2f} over {ex.decades:.2f} decades (a random walk: +0.5 over ≥ 1)"
+                       if math.isfinite(ex.slope) else "no Allan excess over the white-noise line")
+        if not ok_inc:
+            why.append(f"the walk's increments are not a random walk's ({', '.join(f'{k} {v:.3g}' for k, v in inc.items())})")
+        dropped.append({"effect": term.effect, "axis": a, "nl": dict(term.nl), "reason": "; ".join(why)})
+        found = _without(found, term)
+
+    # bias steps: not when a covariate changes at the same time
+    for term in [t for t in found if t.effect == "bias_step" and not t.fixed]:
+        hits = coincident_covariates(p, float(term.nl["t_step_s"]))
+        if hits:
+            dropped.append({"effect": term.effect, "axis": term.axis, "nl": dict(term.nl),
+                            "reason": f"coincides with a change of {', '.join(hits)}: not a bias step of the sensor"})
+            found = _without(found, term)
+
+    # 2. specific evidence against each family's probe
+    changed = True
+    while changed:
+        changed = False
+        final = build_state(p, base_terms + found)
+        for a in p.axes:
+            for family, probe_name in FAMILY_PROBE.items():
+                mine = [t for t in found if not t.fixed and t.axis == a and CANDIDATES[t.effect].family == family]
+                if not mine:
+                    continue
+                hit = _probe_term(p, final, probe_name, a)
+                if hit is None or not hit[1].acceptable:
+                    continue
+                say(f"open world: {probe_name} finds structure on {a}; checking {', '.join(t.effect for t in mine)}")
+                left = hit[1].rms_before ** 2 - hit[1].rms_after ** 2
+                for term in mine:
+                    others = _without(found, term)
+                    explained = build_state(p, base_terms + others).axes[a].mse - final.axes[a].mse
+                    if left > PARTIAL_SHARE * explained:
+                        dropped.append({"effect": term.effect, "axis": a, "nl": dict(term.nl),
+                                        "reason": f"partial explanation: {PROBES[probe_name].where} still explains "
+                                                  f"{math.sqrt(max(left, 0)):.2g} deg/s after it, against "
+                                                  f"{math.sqrt(max(explained, 0)):.2g} deg/s explained by the term"})
+                        found = others
+                        changed = True
+                        break
+                    probe_term = _probe_term(p, build_state(p, base_terms + others), probe_name, a)
+                    if probe_term is None:
+                        continue
+                    reduced = build_state(p, base_terms + others + [probe_term[0]])
+                    with_term = build_state(p, base_terms + others + [probe_term[0], term])
+                    d_ic, gain, phi, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
+                    term.evidence.update({"d_ic_given_probe": d_ic})
+                    if d_ic < -10.0 and max(gain, gain_band) > 0:
+                        continue
+                    dropped.append({"effect": term.effect, "axis": a, "nl": dict(term.nl),
+                                    "reason": f"partial explanation: {PROBES[probe_name].where} leaves structure it does "
+                                              f"not explain, and with that structure modelled generically the term is "
+                                              f"not needed (ΔIC {d_ic:+.1f})"})
+                    found = others
+                    changed = True
+                    break
+                if changed:
+                    break
+            if changed:
+                break
+
+    # every term still material in the final company (a term found next to a random walk that has
+    # since lost its name may no longer carry its weight)
+    changed = True
+    while changed and found:
+        changed = False
+        full = build_state(p, base_terms + found)
+        for term in [t for t in found if not t.fixed]:
+            reduced = build_state(p, base_terms + _without(found, term))
+            d_ic, gain, phi, gain_band, band_t = compare(p, reduced, full, term.built.axes, term_df(term))
+            if not material(d_ic, gain, gain_band, band_t):
+                dropped.append({"effect": term.effect, "axis": term.axis, "nl": dict(term.nl),
+                                "reason": f"not material in the final model (ΔIC {d_ic:+.1f}, gain {100 * gain:.2g} %)"})
+                found = _without(found, term)
+                changed = True
+                break
+
+    # 3. noise terms and what is left
+    final = build_state(p, base_terms + found)
+    unexplained: list[dict[str, Any]] = []
+    for a in p.axes:
+        say(f"open world: looking for structure left on {a}")
+        has_walk = any(t.effect == "rate_random_walk" and t.axis == a for t in found)
+        ex = allan_excess(final.axes[a].resid(), p.fs)
+        excess[a] = ex
+        hits = []
+        for name in PROBES:
+            if has_walk and name == "probe:time":
+                continue
+            hit = _probe_term(p, final, name, a)
+            if hit is not None and hit[1].acceptable:
+                hits.append(hit[1])
+        time_hit = next((e for e in hits if e.cand.name == "probe:time"), None)
+        if (time_hit is not None and "bias_instability" not in hidden and abs(ex.slope) <= SLOPE_TOL
+                and ex.decades >= 1.0 and _lives_in_time_only(p, final, a)[0]):
+            b = ex.level_dps / FLICKER_FLOOR
+            noise.append(NoiseFinding("bias_instability", a,
+                                      {"b_dps": b, "tau_min_s": ex.tau_range_s[0], "tau_max_s": ex.tau_range_s[1]},
+                                      time_hit.rms_before, time_hit.rms_after,
+                                      {"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s}))
+            # every other slow probe was weaker than time by IC_MIN (_lives_in_time_only): what they
+            # found is the same wander; a spectral line is not
+            hits = [e for e in hits if e.cand.name == "probe:spectrum"]
+        if not hits:
+            continue
+        hits.sort(key=lambda e: e.d_ic)
+        where = []
+        for e in hits:
+            size = math.sqrt(max(e.rms_before ** 2 - e.rms_after ** 2, 0.0))
+            band = math.sqrt(max(e.band_before ** 2 - e.band_after ** 2, 0.0))
+            item = {"against": PROBES[e.cand.name].where, "probe": e.cand.name.split(":", 1)[1],
+                    "rms_dps": size, "band_rms_dps": band, "gain": e.gain, "gain_band": e.gain_band, "d_ic": e.d_ic}
+            if "frequency_hz" in e.nl_full:
+                item["frequency_hz"] = float(e.nl_full["frequency_hz"])
+            where.append(item)
+        unexplained.append({
+            "axis": a,
+            "rms_dps": max(w["rms_dps"] for w in where),
+            "band_rms_dps": max(w["band_rms_dps"] for w in where),
+            "band_s": p.blocks.length / p.fs,
+            "residual_rms_dps": math.sqrt(final.axes[a].mse),
+            "where": where,
+            "allan_excess": ex.as_json(),
+        })
+    return OpenWorld(found, noise, unexplained, dropped, excess)

@@ -1,0 +1,189 @@
+"""`bench diagnose` end to end on a run file recorded through the drivers, transports and recorder
+(not the session generator), the binning of long data, and the progress lines of long analyses."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import SIM_CONFIG, run_cli
+
+# A 25-minute chamber ramp with the board streaming at 100 Hz: 150,000 rows, more than
+# BIN_MIN_ROWS, so diagnose analyses bin means. About 3 s of wall time in virtual time.
+RAMP = """schema: bench-procedure/1
+name: diagnose_ramp_short
+title: Short chamber ramp recorded for bench diagnose (tests/test_diagnose_runfile.py)
+instruments: [acs_board, tvac, thermocouples]
+steps:
+  - power: {instrument: acs_board, on: true, name: sensors on}
+  - configure: {instrument: acs_board, odr: 100 Hz, moving_average: 1}
+  - set_temperature: {instrument: tvac, set_point: 35 degC, ramp: 1 degC/min, name: ramp up}
+  - record: {instrument: acs_board, duration: 25 min, window: ramp, name: record the ramp}
+  - power: {instrument: acs_board, on: false, name: sensors off}
+  - set_temperature: {instrument: tvac, set_point: 20 degC, name: back to ambient}
+"""
+
+
+@pytest.fixture(scope="module")
+def ramp_run(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("ramp")
+    proc = d / "diagnose_ramp_short.yaml"
+    proc.write_text(RAMP, encoding="utf-8")
+    r = run_cli("run", str(proc), "--config", str(SIM_CONFIG), "--sim", "--runs-dir", str(d / "runs"))
+    assert r.returncode == 0, r.stdout + r.stderr
+    (path,) = sorted((d / "runs").glob("*.h5"))
+    return path
+
+
+def test_diagnose_recorded_run_json_report_and_model(ramp_run, tmp_path):
+    from bench.record import read_run_summary
+
+    report = tmp_path / "out.html"
+    model = tmp_path / "extended.yaml"
+    r = run_cli("diagnose", str(ramp_run), "--json", "--report", str(report), "-o", str(model), timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr
+    doc = json.loads(r.stdout)  # stdout is only the JSON: every other line went to stderr
+    assert set(doc["axes"]) == {"x", "y", "z"}
+    for a, v in doc["axes"].items():
+        assert math.isfinite(v["rms_baseline"]) and v["rms_baseline"] > 0, a
+        assert math.isfinite(v["rms_extended"]) and v["rms_extended"] > 0, a
+    assert isinstance(doc["findings"], list) and isinstance(doc["skipped"], list)
+
+    # where the outputs went
+    assert report.is_file() and report.read_text(encoding="utf-8").lstrip().lower().startswith("<!doctype html")
+    assert f"report written to {report}" in r.stderr
+    assert model.is_file() and "schema: bench-sensor-model/1" in model.read_text(encoding="utf-8")
+    assert f"extended model written to {model}" in r.stderr
+
+    # rows analysed: the board stream, as bin means of k rows
+    (board,) = [s for s in read_run_summary(ramp_run).streams if s.key == "acs_board"]
+    assert board.rows == 150_000
+    m = re.search(r"analysed ([\d,]+) bin means of (\d+) rows \(([\d.]+) s\) from ([\d,]+) samples at ([\d.]+) Hz",
+                  r.stderr)
+    assert m, r.stderr
+    bins, k, samples = int(m.group(1).replace(",", "")), int(m.group(2)), int(m.group(4).replace(",", ""))
+    assert samples == board.rows
+    assert k == 100 and float(m.group(3)) == pytest.approx(1.0)
+    assert board.rows // k - 1 <= bins <= board.rows // k
+
+
+def test_diagnose_recorded_run_human_output(ramp_run, tmp_path):
+    report = tmp_path / "human.html"
+    r = run_cli("diagnose", str(ramp_run), "--report", str(report), timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = r.stdout.splitlines()
+    assert any(line.startswith("x: baseline residual") for line in out), r.stdout
+    assert any(line.startswith("analysed 1,500 bin means of 100 rows") for line in out), r.stdout
+    assert f"report written to {report}" in r.stdout
+    assert report.is_file()
+
+
+# ---- binning (bench/analysis/diagnose/data.py) ---------------------------------------------------
+def _dataset(n: int, fs: float, **extra: np.ndarray):
+    from bench.analysis.dataset import Dataset
+
+    rng = np.random.default_rng(7)
+    t = np.arange(n) / fs
+    cols = {"time_s": t, "temp_c": 20.0 + 10.0 * t / t[-1], "power_on_s": t}
+    for a in "xyz":
+        cols[f"gyro_{a}_dps"] = 0.02 * rng.standard_normal(n)
+    cols.update(extra)
+    return Dataset(cols, {}, "synthetic")
+
+
+def test_long_data_are_binned_to_one_second_means():
+    from bench.analysis.diagnose.data import prepare
+
+    ds = _dataset(150_000, 100.0)
+    p = prepare(ds)
+    assert p.bin_rows == 100 and p.raw_rows == 150_000 and p.raw_fs == pytest.approx(100.0)
+    assert p.n == 1500 and p.fs == pytest.approx(1.0)
+    # bin means of every column, time the bin's mean time
+    np.testing.assert_allclose(p.gyro["x"][:3], ds["gyro_x_dps"][:300].reshape(3, 100).mean(axis=1))
+    np.testing.assert_allclose(p.t[:2], [0.495, 1.495])
+    # white noise of the means: variance / k
+    assert np.std(p.gyro["y"]) == pytest.approx(0.002, rel=0.1)
+    assert p.rows_line().startswith("analysed 1,500 bin means of 100 rows (1 s) from 150,000 samples at 100 Hz")
+
+
+def test_short_data_are_not_binned():
+    from bench.analysis.diagnose.data import prepare
+
+    p = prepare(_dataset(72_000, 10.0))
+    assert p.bin_rows == 1 and p.n == 72_000
+    assert p.rows_line() == "analysed 72,000 rows at 10 Hz"
+
+
+def test_rotating_table_keeps_the_angle_resolution():
+    from bench.analysis.diagnose.data import prepare
+    from bench.analysis.diagnose.terms import GearEccentricity
+
+    n, fs, w = 150_000, 100.0, 1.0  # 1 deg/s: N = 360 has a 1-s period, 4 bins per period = 0.25 s
+    t = np.arange(n) / fs
+    ds = _dataset(n, fs, ref_rate_z_dps=np.full(n, w), ref_rate_x_dps=np.zeros(n), ref_rate_y_dps=np.zeros(n),
+                  table_angle_deg=(w * t) % 360.0)
+    p = prepare(ds)
+    span = p.bin_rows / fs
+    assert span <= 360.0 / (4 * GearEccentricity.N_MAX * w) + 1e-9
+    assert p.bin_rows == 25
+    # the angle is averaged unwrapped: no bin mean near 180 deg where the table crosses 360/0
+    d = np.diff(np.unwrap(np.radians(p.angle)))
+    np.testing.assert_allclose(np.degrees(d), w * span, rtol=1e-6)
+
+
+def test_a_spectral_line_above_the_bins_shortens_them():
+    from bench.analysis.diagnose.data import prepare
+
+    n, fs = 150_000, 100.0
+    ds = _dataset(n, fs)
+    ds.columns["gyro_z_dps"] = ds["gyro_z_dps"] + 0.01 * np.sin(2 * np.pi * 5.0 * ds["time_s"])
+    p = prepare(ds)
+    assert p.bin_rows in (4, 5)  # 4 bins per period of the 5-Hz line (0.05 s), frequency within its resolution
+    assert "spectral line at 5" in p.rows_line()
+
+
+# ---- progress (bench/analysis/progress.py) ------------------------------------------------------
+class _Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_progress_silent_at_first_then_throttled_lines():
+    from bench.analysis.progress import Progress
+
+    buf, clock = io.StringIO(), _Clock()
+    with Progress("diagnose", buf, tty=False, heartbeat=False, clock=clock) as say:
+        say("round 1")
+        clock.t = 1.0
+        say("round 2")
+        assert buf.getvalue() == ""  # quick analyses print nothing
+        clock.t = 2.5
+        say("round 3")
+        clock.t = 2.9
+        say("round 4")  # within a second of the last line
+        clock.t = 3.6
+        say("round 5")
+        clock.t = 5.0
+        say("round 5")  # unchanged: repeated only every 10 s
+    assert buf.getvalue().splitlines() == ["diagnose: round 3 (2 s)", "diagnose: round 5 (4 s)"]
+
+
+def test_progress_on_a_terminal_rewrites_one_line_and_erases_it():
+    from bench.analysis.progress import Progress
+
+    buf, clock = io.StringIO(), _Clock()
+    say = Progress("calibrate noise", buf, tty=True, heartbeat=False, clock=clock)
+    clock.t = 3.0
+    say("fitting")
+    say.close()
+    assert buf.getvalue() == "\rcalibrate noise: fitting (3 s)\x1b[K\r\x1b[K"
