@@ -70,7 +70,7 @@ def test_diagnose_recorded_run_json_report_and_model(ramp_run, tmp_path):
     assert m, r.stderr
     bins, k, samples = int(m.group(1).replace(",", "")), int(m.group(2)), int(m.group(4).replace(",", ""))
     assert samples == board.rows
-    assert k == 100 and float(m.group(3)) == pytest.approx(1.0)
+    assert k == 500 and float(m.group(3)) == pytest.approx(5.0)  # static data: 5-s means (BIN_MAX_STATIC_S)
     assert board.rows // k - 1 <= bins <= board.rows // k
 
 
@@ -80,7 +80,7 @@ def test_diagnose_recorded_run_human_output(ramp_run, tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     out = r.stdout.splitlines()
     assert any(line.startswith("x: baseline residual") for line in out), r.stdout
-    assert any(line.startswith("analysed 1,500 bin means of 100 rows") for line in out), r.stdout
+    assert any(line.startswith("analysed 300 bin means of 500 rows") for line in out), r.stdout
     assert f"report written to {report}" in r.stdout
     assert report.is_file()
 
@@ -98,19 +98,37 @@ def _dataset(n: int, fs: float, **extra: np.ndarray):
     return Dataset(cols, {}, "synthetic")
 
 
-def test_long_data_are_binned_to_one_second_means():
+def test_long_static_data_are_binned_to_five_second_means():
     from bench.analysis.diagnose.data import prepare
 
     ds = _dataset(150_000, 100.0)
     p = prepare(ds)
-    assert p.bin_rows == 100 and p.raw_rows == 150_000 and p.raw_fs == pytest.approx(100.0)
-    assert p.n == 1500 and p.fs == pytest.approx(1.0)
+    assert p.bin_rows == 500 and p.raw_rows == 150_000 and p.raw_fs == pytest.approx(100.0)
+    assert p.n == 300 and p.fs == pytest.approx(0.2)
     # bin means of every column, time the bin's mean time
-    np.testing.assert_allclose(p.gyro["x"][:3], ds["gyro_x_dps"][:300].reshape(3, 100).mean(axis=1))
-    np.testing.assert_allclose(p.t[:2], [0.495, 1.495])
+    np.testing.assert_allclose(p.gyro["x"][:3], ds["gyro_x_dps"][:1500].reshape(3, 500).mean(axis=1))
+    np.testing.assert_allclose(p.t[:2], [2.495, 7.495])
     # white noise of the means: variance / k
-    assert np.std(p.gyro["y"]) == pytest.approx(0.002, rel=0.1)
-    assert p.rows_line().startswith("analysed 1,500 bin means of 100 rows (1 s) from 150,000 samples at 100 Hz")
+    assert np.std(p.gyro["y"]) == pytest.approx(0.02 / np.sqrt(500), rel=0.15)
+    assert p.rows_line().startswith("analysed 300 bin means of 500 rows (5 s) from 150,000 samples at 100 Hz")
+
+
+def test_static_data_leave_out_the_rows_where_the_unit_was_moved():
+    """Handling between orientations (a few rows at hundreds of deg/s, as in the real CATS log) is left
+    out of a static analysis, with a margin, and said; the rest is analysed as recorded."""
+    from bench.analysis.diagnose.data import prepare
+
+    ds = _dataset(20_000, 1.0)
+    g = ds.columns["gyro_y_dps"]
+    g[5000:5030] += 200.0  # 30 s of turning the unit by hand
+    g[12000] -= 50.0
+    p = prepare(ds)
+    assert p.motion == (30 + 1 + 2 * 2 * 60, 2)
+    assert p.n == 20_000 - p.motion[0]
+    assert float(np.max(np.abs(p.gyro["y"]))) < 0.2
+    assert "left out 271 rows in 2 stretch(es) where the unit was moved" in p.rows_line()
+    quiet = prepare(_dataset(20_000, 1.0))
+    assert quiet.motion == (0, 0) and quiet.n == 20_000
 
 
 def test_short_data_are_not_binned():

@@ -191,8 +191,9 @@ def test_noise_free_report_profile_recovers_specified_values(which):
     err = errors(fit.params, true)
     # bias (V), sensitivity (V/g or V/(deg/s)), azimuth and coning (rad): 1e-9. The accelerometer
     # ramp (0-10 deg only) leaves the azimuth barely determined (cond([1 G]) ≈ 5e5 and
-    # ∂V/∂A ∝ S sin C): its float64 floor is ~3e-10 rad = 2e-8 deg.
-    assert np.max(np.abs(err)) < 1e-9, err
+    # ∂V/∂A ∝ S sin C): its float64 floor is ~3e-10 rad = 2e-8 deg, and depends on the BLAS: with
+    # numpy 2.4 / scipy 1.17 the sting's third azimuth lands at 1.3e-9 rad (8e-8 deg).
+    assert np.max(np.abs(err)) < 3e-9, err
     assert max(fit.iterations) <= 20
     assert fit.total_residual_rms < 1e-14
     # the Computed column of Table 3/4 at its printed precision

@@ -32,11 +32,24 @@ RATE_EXCITED_DPS = 0.05
 BIN_MIN_ROWS = 100_000
 """Data with more rows than this are analysed as means of consecutive rows (:func:`bin_length`)."""
 BIN_MAX_S = 1.0
+BIN_MAX_STATIC_S = 5.0
+"""Longest bin for static data (no reference rate): nothing in the vocabulary is faster than the
+warm-up grid's shortest τ (10 s) there but a spectral line, which the line check keeps. A 74-h
+static log at 1 Hz becomes 53,600 five-second means."""
 """Longest bin (s): the slowest-sampled sessions diagnose is validated on are 1 Hz, and every
 vocabulary term but the fast ones named in :func:`bin_length` varies over tens of seconds or more."""
 BIN_PER_PERIOD = 4
 """A periodic signal the vocabulary can see (a gear harmonic, a spectral line) keeps at least this
 many bins per period: its bin means keep ≥ 90 % of its amplitude (sinc(1/4))."""
+MOTION_SIGMA = 12.0
+"""Static data (no reference rate): a row whose gyro is this many robust standard deviations
+(1.4826·MAD) off its running median on any axis, or whose specific force magnitude is more than
+:data:`MOTION_G` off its running median, is the unit being moved (handling between orientations)."""
+MOTION_G = 0.1
+MOTION_PAD_S = 60.0
+"""Rows this close to a moving row are left out with it (the unit settling)."""
+MOTION_MAX_SHARE = 0.2
+"""More moving rows than this share: the data are not a static test; nothing is left out."""
 LINE_FRACTION = 0.02
 """A spectral line above the bins' reach that carries this share of the gyro variance (1 % of its
 RMS, the materiality of ``engine.GAIN_MIN``) shortens the bins so that it is kept."""
@@ -138,6 +151,8 @@ class Prepared:
     """Sample rate of the data before binning (Hz)."""
     bin_reason: str = ""
     """What limited the bin length (empty when not binned or at :data:`BIN_MAX_S`)."""
+    motion: tuple[int, int] = (0, 0)
+    """(rows, stretches) left out because the unit was being moved (:func:`motion_rows`)."""
 
     @property
     def n(self) -> int:
@@ -146,11 +161,16 @@ class Prepared:
     def rows_line(self) -> str:
         """What was analysed, e.g. "analysed 13,190 bin means of 100 rows (1 s) from 1,319,000 samples
         at 100 Hz; RMS figures are those of the bin means"."""
+        moved = ""
+        if self.motion[0]:
+            moved = (f"; left out {self.motion[0]:,} rows in {self.motion[1]} stretch(es) where the unit was moved "
+                     f"(gyro > {MOTION_SIGMA:g} robust σ off its running median or |specific force| off by > "
+                     f"{MOTION_G:g} g, ±{MOTION_PAD_S:g} s)")
         if self.bin_rows <= 1:
-            return f"analysed {self.n:,} rows at {self.fs:.4g} Hz"
+            return f"analysed {self.n:,} rows at {self.fs:.4g} Hz" + moved
         why = f", {self.bin_reason}" if self.bin_reason else ""
         return (f"analysed {self.n:,} bin means of {self.bin_rows} rows ({self.bin_rows / self.raw_fs:.3g} s{why}) "
-                f"from {self.raw_rows:,} samples at {self.raw_fs:.4g} Hz; RMS figures are those of the bin means")
+                f"from {self.raw_rows:,} samples at {self.raw_fs:.4g} Hz; RMS figures are those of the bin means" + moved)
 
     @property
     def duration_s(self) -> float:
@@ -206,6 +226,16 @@ def prepare(ds: Dataset) -> Prepared:
             raw[name] = v
     present = set(raw)
     raw_fs = 1.0 / float(np.median(np.diff(t)))
+    motion = (0, 0)
+    if not any(REF_RATE[a] in raw for a in AXES):
+        moving = motion_rows(t, [raw[GYRO[a]] for a in axes],
+                             [raw[ACCEL[a]] for a in AXES] if all(ACCEL[a] in raw for a in AXES) else None, raw_fs)
+        if moving.any() and moving.mean() <= MOTION_MAX_SHARE and (~moving).sum() >= MIN_ROWS:
+            starts = int(np.count_nonzero(np.diff(moving.astype(np.int8)) == 1) + moving[0])
+            motion = (int(moving.sum()), starts)
+            keep = ~moving
+            t = t[keep]
+            raw = {k_: v[keep] for k_, v in raw.items()}
     raw_rows = t.size
     k, why = 1, ""
     if t.size > BIN_MIN_ROWS:
@@ -238,11 +268,42 @@ def prepare(ds: Dataset) -> Prepared:
     prep = Prepared(source=ds.source, t=t, fs=fs, axes=axes, gyro=gyro, ref=ref, temp=temp, pressure=pressure,
                     power_on=col("power_on_s"), accel=accel, angle=col("table_angle_deg"),
                     latitude=ds.latitude_deg(), blocks=Blocks(n, length), present=present,
-                    bin_rows=k, raw_rows=raw_rows, raw_fs=raw_fs, bin_reason=why)
+                    bin_rows=k, raw_rows=raw_rows, raw_fs=raw_fs, bin_reason=why, motion=motion)
     prep.table_axis = _table_axis(prep)
     if ref is not None:
         prep.blocks.balance(ref)
     return prep
+
+
+def motion_rows(t: np.ndarray, gyro: list[np.ndarray], accel: list[np.ndarray] | None, fs: float) -> np.ndarray:
+    """Rows where a static unit is being moved: a gyro axis more than :data:`MOTION_SIGMA` robust
+    standard deviations off its running median (medians of 5-min blocks, interpolated), or the
+    specific force magnitude more than :data:`MOTION_G` off its running median; widened by
+    :data:`MOTION_PAD_S` on both sides. (n,) bool."""
+    n = t.size
+    w = max(int(300.0 * fs), 16)
+    moving = np.zeros(n, bool)
+
+    def running_median(x: np.ndarray) -> np.ndarray:
+        b = n // w
+        if b < 2:
+            return np.full(n, float(np.median(x)))
+        med = np.median(x[: b * w].reshape(b, w), axis=1)
+        centres = t[: b * w].reshape(b, w).mean(axis=1)
+        return np.interp(t, centres, med)
+
+    for x in gyro:
+        d = x - running_median(x)
+        sigma = 1.4826 * float(np.median(np.abs(d)))
+        if sigma > 0:
+            moving |= np.abs(d) > MOTION_SIGMA * sigma
+    if accel is not None:
+        g = np.sqrt(sum(a * a for a in accel))
+        moving |= np.abs(g - running_median(g)) > MOTION_G
+    if moving.any():
+        pad = max(int(round(MOTION_PAD_S * fs)), 0)
+        moving = np.convolve(moving.astype(float), np.ones(2 * pad + 1), mode="same") > 0
+    return moving
 
 
 def bin_length(n: int, fs: float, response: dict[str, np.ndarray], refs: list[np.ndarray]) -> tuple[int, str]:
@@ -252,7 +313,7 @@ def bin_length(n: int, fs: float, response: dict[str, np.ndarray], refs: list[np
     the vocabulary can see while the fits get k times fewer rows (the white noise of a k-row mean is
     still white, with variance σ²/k, so the held-out statistics stay valid). The bin is the longest of
 
-    * :data:`BIN_MAX_S`;
+    * :data:`BIN_MAX_S` (:data:`BIN_MAX_STATIC_S` without a reference rate);
     * with a reference rate: :data:`BIN_PER_PERIOD` bins per period of the highest table-angle
       harmonic the gear term searches at the highest rate, 1/(N_max·max|ω|/360°)/4 (this also
       keeps rate changes resolved for the time-skew and scale-factor terms);
@@ -260,9 +321,10 @@ def bin_length(n: int, fs: float, response: dict[str, np.ndarray], refs: list[np
       at least :data:`LINE_FRACTION` of the variance: 4 bins per period of the highest such line;
 
     and no binning when that is less than two rows."""
-    if n <= BIN_MIN_ROWS or not math.isfinite(fs) or fs * BIN_MAX_S < 2:
+    top = BIN_MAX_S if refs else BIN_MAX_STATIC_S
+    if n <= BIN_MIN_ROWS or not math.isfinite(fs) or fs * top < 2:
         return 1, ""
-    span, why = BIN_MAX_S, ""
+    span, why = top, ""
     w = max((float(np.max(np.abs(r))) for r in refs), default=0.0)
     if w > 0:
         from bench.analysis.diagnose.terms import GearEccentricity
