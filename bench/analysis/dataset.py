@@ -116,15 +116,20 @@ def load_dataset(path: str | Path, mapping=None) -> Dataset:
         from bench.analysis.foreign import dataset_from_foreign
 
         return dataset_from_foreign(p, mapping)
-    if p.suffix.lower() in (".h5", ".hdf5") or _is_hdf5(p):
+    if p.suffix.lower() in (".h5", ".hdf5") or is_hdf5(p):
         return dataset_from_run(p)
     return dataset_from_csv(p)
 
 
-def _is_hdf5(p: Path) -> bool:
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+"""The first 8 bytes of every HDF5 (and netCDF-4) file."""
+
+
+def is_hdf5(p: Path) -> bool:
+    """Whether ``p`` starts with the HDF5 signature (False when it cannot be read)."""
     try:
         with open(p, "rb") as fh:
-            return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+            return fh.read(8) == HDF5_SIGNATURE
     except OSError:
         return False
 

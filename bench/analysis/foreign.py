@@ -40,7 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.analysis.dataset import COLUMNS, Dataset
+from bench.analysis.dataset import COLUMNS, HDF5_SIGNATURE, Dataset, is_hdf5
 from bench.errors import InputError, InputErrors, Location
 
 MAX_ROWS = 20_000_000
@@ -58,8 +58,6 @@ MAX_VISIT = 10_000
 MAX_LISTED = 40
 """Variables named in a message."""
 MAX_RATE_HZ = 1e9
-
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 MAPPING_SCHEMA = "bench-mapping/1"
 SOURCE_FORMAT = "HDF5/netCDF-4 (mapped)"
@@ -467,14 +465,6 @@ def conversion(text: str, kind: str) -> Conversion:
 
 
 # ---- reading the file ----------------------------------------------------------------------------
-def is_hdf5(path: Path) -> bool:
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(8) == HDF5_SIGNATURE
-    except OSError:
-        return False
-
-
 def _open(path: Path):
     """The file opened read-only with h5py; :class:`InputError` when it cannot be."""
     import h5py

@@ -55,8 +55,8 @@ Vocabulary (equations in ``docs/diagnose.md``; defaults cite the seeds, [U] = as
 * ``periodic``: A·sin(2π·f·t + φ), periodic interference (NPSAT1 IV.G.3 names "sinusoidal error"
   among the Allan components). Default 0.
 * ``scale_factor_nonlinearity``: k2·ω² + k3·ω³ (IEEE Std 1431 scale-factor nonlinearity). Default 0.
-* ``bias_instability``: flicker bias noise, Allan plateau 0.664·B (IEEE Std 952 C.1.3), by a sum of
-  Gauss-Markov processes one octave apart; default B = 1.92 deg/h (NPSAT1 Table 13, X).
+* ``bias_instability``: flicker bias noise, Allan plateau 0.664·B (IEEE Std 952 C.1.3), by the gyro
+  model's sum of Gauss-Markov processes; default B = 1.92 deg/h (NPSAT1 Table 13, X).
 
 A term is added in one place, :func:`register` (parameters, forward function, inputs); its
 diagnose candidate joins with ``bench.analysis.diagnose.terms.register``.
@@ -510,22 +510,21 @@ def flicker_noise(t: np.ndarray, b_dps: float, tau_min_s: float, tau_max_s: floa
                   rng: np.random.Generator) -> np.ndarray:
     """Flicker (1/f) noise of bias-instability coefficient B (deg/s) at sample times ``t`` (s).
 
-    A sum of first-order Gauss-Markov processes with correlation times one octave apart between
-    ``tau_min_s`` and ``tau_max_s`` (r = 2), each of variance q² = B²·ln r/π: the sum of their
-    Lorentzian spectra 2q²T/(1 + (2πfT)²) over T spaced by a factor r is q²/(2 f ln r) = B²/(2π f),
-    the one-sided 1/f spectrum of IEEE Std 952 C.1.3, whose Allan deviation is flat at 0.664·B for
-    averaging times τ between about 2·tau_min and tau_max/2."""
+    The gyro model's Gauss-Markov sum (:func:`bench.model.gyro.flicker_processes`: correlation
+    times two per decade between ``tau_min_s`` and ``tau_max_s``, each of variance B²·ln r/π), whose
+    Lorentzian spectra add up to the one-sided 1/f spectrum B²/(2π f) of IEEE Std 952 C.1.3: the
+    Allan deviation is flat at 0.664·B for averaging times between about 2·tau_min and tau_max/2."""
+    from bench.model.gyro import flicker_processes
+
     t = np.asarray(t, dtype=float)
     n = t.shape[0]
     out = np.zeros(n)
     if n == 0 or b_dps == 0:
         return out
     dt = float(np.median(np.diff(t))) if n > 1 else 1.0
-    r = 2.0
-    count = max(int(math.floor(math.log(tau_max_s / tau_min_s, r))) + 1, 1)
-    q = abs(b_dps) * math.sqrt(math.log(r) / math.pi)
-    for j in range(count):
-        tc = tau_min_s * r ** j
+    taus, per_b = flicker_processes(tau_min_s, tau_max_s)
+    q = abs(b_dps) * per_b
+    for tc in taus:
         a = math.exp(-dt / tc)
         w = rng.standard_normal(n) * q * math.sqrt(1.0 - a * a)
         w[0] = rng.standard_normal() * q  # stationary start

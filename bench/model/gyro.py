@@ -201,17 +201,24 @@ def deterministic_output_dps(p: GyroModelParams, inputs: SensorInputs) -> np.nda
     return out
 
 
+def flicker_processes(tau_min_s: float, tau_max_s: float, per_decade: int = 2) -> tuple[np.ndarray, float]:
+    """Correlation times τ_j (J,) in s of the Gauss-Markov sum approximating flicker (bias
+    instability) noise, and the standard deviation of each process per unit B (σ_j = B·√(ln r/π),
+    r the ratio of neighbouring τ_j; module docstring)."""
+    decades = math.log10(tau_max_s / tau_min_s)
+    count = max(int(round(decades * per_decade)) + 1, 2)
+    taus = np.logspace(math.log10(tau_min_s), math.log10(tau_max_s), count)
+    ratio = (tau_max_s / tau_min_s) ** (1.0 / (count - 1))
+    return taus, math.sqrt(math.log(ratio) / math.pi)  # σ_j² = B² ln r / π, equal for every j
+
+
 def bias_instability_processes(p: GyroModelParams) -> tuple[np.ndarray, np.ndarray]:
     """Correlation times τ_j (J,) in s and standard deviations σ (3, J) in deg/s of the
     Gauss-Markov sum approximating bias instability (module docstring)."""
     b = np.asarray(p.bias_instability_dph, dtype=float) * DPH
     lo, hi = (float(x) for x in p.bias_instability_tau_range_s)
-    decades = math.log10(hi / lo)
-    count = max(int(round(decades * p.bias_instability_per_decade)) + 1, 2)
-    taus = np.logspace(math.log10(lo), math.log10(hi), count)
-    ratio = (hi / lo) ** (1.0 / (count - 1))
-    sigma = np.sqrt(math.log(ratio) / math.pi) * b  # σ_j² = B² ln r / π, equal for every j
-    return taus, np.repeat(sigma[:, None], count, axis=1)
+    taus, per_b = flicker_processes(lo, hi, p.bias_instability_per_decade)
+    return taus, np.repeat((per_b * b)[:, None], taus.size, axis=1)
 
 
 # ---- the stateful model -------------------------------------------------------------------------

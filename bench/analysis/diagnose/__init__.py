@@ -181,8 +181,7 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
-    for nf in ow.noise:
-        findings.append(Finding(nf.effect, nf.axis, nf.params, nf.rms_before, nf.rms_after, dict(nf.evidence)))
+    findings.extend(ow.noise)
     floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
     from bench.analysis.diagnose.structure import analyse
 
@@ -198,11 +197,10 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
 
 def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:
     """Relative drop of the held-out block-mean RMS from state ``before`` to ``after``."""
-    from bench.analysis.diagnose.engine import band_rms
+    from bench.analysis.diagnose.engine import band_gain
 
-    b0 = band_rms({a: before.axes[a].fit.sum_block for a in axes}, p.blocks)
-    b1 = band_rms({a: after.axes[a].fit.sum_block for a in axes}, p.blocks)
-    return 1.0 - b1 / b0 if b0 > 0 else 0.0  # reported as measured (the rule's t test is in engine.band_gain)
+    return band_gain({a: before.axes[a].fit.sum_block for a in axes},
+                     {a: after.axes[a].fit.sum_block for a in axes}, p.blocks)[0]
 
 
 def _temp_coefs(state: Any, a: str) -> np.ndarray:

@@ -32,12 +32,12 @@ RATE_EXCITED_DPS = 0.05
 BIN_MIN_ROWS = 100_000
 """Data with more rows than this are analysed as means of consecutive rows (:func:`bin_length`)."""
 BIN_MAX_S = 1.0
+"""Longest bin (s): the slowest-sampled sessions diagnose is validated on are 1 Hz, and every
+vocabulary term but the fast ones named in :func:`bin_length` varies over tens of seconds or more."""
 BIN_MAX_STATIC_S = 5.0
 """Longest bin for static data (no reference rate): nothing in the vocabulary is faster than the
 warm-up grid's shortest τ (10 s) there but a spectral line, which the line check keeps. A 74-h
 static log at 1 Hz becomes 53,600 five-second means."""
-"""Longest bin (s): the slowest-sampled sessions diagnose is validated on are 1 Hz, and every
-vocabulary term but the fast ones named in :func:`bin_length` varies over tens of seconds or more."""
 BIN_PER_PERIOD = 4
 """A periodic signal the vocabulary can see (a gear harmonic, a spectral line) keeps at least this
 many bins per period: its bin means keep ≥ 90 % of its amplitude (sinc(1/4))."""

@@ -46,8 +46,6 @@ IC_MIN = 10.0
 GAIN_MIN = 0.01
 """Required relative drop of the held-out RMS (1 %), per sample or on the block-mean band: below it
 the model already explains the data (reported gains are never below it)."""
-
-
 BAND_T = 3.0
 """A gain on the block-mean band counts only when the blocks agree on it: the paired t statistic of
 the per-block drop of the squared block mean is at least this (120 blocks of white noise move the
@@ -83,6 +81,8 @@ def band_gain(old: dict[str, np.ndarray], new: dict[str, np.ndarray], blocks: Bl
     sd = float(np.std(d, ddof=1)) if d.size > 1 else 0.0
     t = float(np.mean(d)) / (sd / math.sqrt(d.size)) if sd > 0 else 0.0
     return 1.0 - after / before, before, after, t
+
+
 MAX_TERMS = 8
 """Most terms added by the forward search."""
 T_REF_SCALE_C = 30.0
@@ -400,7 +400,8 @@ def evaluate(p: Prepared, state: State, cand: Candidate, axis: str, ctx: Context
         return None
     axes = runs[0][1].axes
     w = {a: 1.0 / max(state.axes[a].mse, 1e-30) for a in axes}
-    if cand.refine and (len(grid) > 1 or cand.refine_interval(p, cand.refine[0][0], 1.0) is not None):
+    first = cand.refine[0][0] if cand.refine else ""
+    if cand.refine and (len(grid) > 1 or cand.refine_interval(p, first, float(grid[0].get(first, 0.0))) is not None):
         # continuous parameters: refine the whole-data optimum between its grid neighbours and
         # offer it to every fold next to the grid values
         full = [sum(w[a] * f[a].sse_full for a in axes) for _, _, f in runs]

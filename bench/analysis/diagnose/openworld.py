@@ -162,17 +162,24 @@ def coincident_covariates(p: Prepared, t_step: float) -> list[str]:
     return out
 
 
-def _lives_in_time_only(p: Prepared, state: State, axis: str) -> tuple[bool, str]:
-    """Whether the slow structure of ``state``'s residual on ``axis`` is best explained by time
-    itself: the time probe beats every covariate probe by IC_MIN (else it lives against that
-    covariate and is not a random process of the sensor)."""
-    hits = {}
+def _probe_evaluations(p: Prepared, state: State, axis: str, skip: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Every probe (but ``skip``) evaluated on ``state`` at ``axis``: name -> Evaluation."""
+    out = {}
     for name in PROBES:
+        if name in skip:
+            continue
         hit = _probe_term(p, state, name, axis)
         if hit is not None:
-            hits[name] = hit[1].d_ic
-    t = hits.pop("probe:time", 0.0)
-    rivals = {k: v for k, v in hits.items() if k != "probe:spectrum" and v < -10.0}
+            out[name] = hit[1]
+    return out
+
+
+def _lives_in_time_only(evals: dict[str, Any]) -> tuple[bool, str]:
+    """Whether the slow structure the probes ``evals`` (:func:`_probe_evaluations`) find is best
+    explained by time itself: the time probe beats every covariate probe by IC_MIN (else it lives
+    against that covariate and is not a random process of the sensor)."""
+    t = evals["probe:time"].d_ic if "probe:time" in evals else 0.0
+    rivals = {k: e.d_ic for k, e in evals.items() if k not in ("probe:time", "probe:spectrum") and e.d_ic < -10.0}
     if not rivals:
         return True, ""
     best = min(rivals, key=rivals.get)
@@ -257,7 +264,7 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
         ok_inc, inc = walk_increments_ok(full.axes[a].coef(idx))
         slope_ok = abs(ex.slope - 0.5) <= SLOPE_TOL and ex.decades >= 1.0
         term.evidence.update({"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s, **inc})
-        in_time, where = _lives_in_time_only(p, without, a) if slope_ok and ok_inc else (True, "")
+        in_time, where = _lives_in_time_only(_probe_evaluations(p, without, a)) if slope_ok and ok_inc else (True, "")
         if slope_ok and ok_inc and in_time:
             continue
         why = [] if in_time else [where]
@@ -322,21 +329,16 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
         has_walk = any(t.effect == "rate_random_walk" and t.axis == a for t in found)
         ex = allan_excess(final.axes[a].resid(), p.fs)
         excess[a] = ex
-        hits = []
-        for name in PROBES:
-            if has_walk and name == "probe:time":
-                continue
-            hit = _probe_term(p, final, name, a)
-            if hit is not None and hit[1].acceptable:
-                hits.append(hit[1])
+        evals = _probe_evaluations(p, final, a, ("probe:time",) if has_walk else ())
+        hits = [e for e in evals.values() if e.acceptable]
         time_hit = next((e for e in hits if e.cand.name == "probe:time"), None)
         if (time_hit is not None and "bias_instability" not in hidden and abs(ex.slope) <= SLOPE_TOL
-                and ex.decades >= 1.0 and _lives_in_time_only(p, final, a)[0]):
+                and ex.decades >= 1.0 and _lives_in_time_only(evals)[0]):
             b = ex.level_dps / FLICKER_FLOOR
             noise.append(Finding("bias_instability", a,
-                                      {"b_dps": b, "tau_min_s": ex.tau_range_s[0], "tau_max_s": ex.tau_range_s[1]},
-                                      time_hit.rms_before, time_hit.rms_after,
-                                      {"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s}))
+                                 {"b_dps": b, "tau_min_s": ex.tau_range_s[0], "tau_max_s": ex.tau_range_s[1]},
+                                 time_hit.rms_before, time_hit.rms_after,
+                                 {"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s}))
             # every other slow probe was weaker than time by IC_MIN (_lives_in_time_only): what they
             # found is the same wander; a spectral line is not
             hits = [e for e in hits if e.cand.name == "probe:spectrum"]

@@ -11,7 +11,7 @@ import numpy as np
 
 from bench.analysis.dataset import Dataset
 from bench.analysis.diagnose.data import Prepared
-from bench.analysis.diagnose.engine import GAIN_MIN, IC_MIN, Search
+from bench.analysis.diagnose.engine import GAIN_MIN, IC_MIN, Search, block_means
 from bench.analysis.diagnose.result import DiagnoseResult
 from bench.analysis.diagnose.structure import analyse, covariates
 from bench.errors import InputError
@@ -161,10 +161,8 @@ def _render(result: DiagnoseResult, p: Prepared, s: Search) -> str:
         fig, axs = plt.subplots(len(result.unexplained), 1, figsize=(10, 2.6 * len(result.unexplained)), squeeze=False)
         for ax, u in zip(axs[:, 0], result.unexplained):
             a = u["axis"]
-            L = p.blocks.length
-            r = res_e[a]
-            m = p.blocks.shaped(r)[:, :, 0].sum(axis=1) / np.minimum(L, p.n - np.arange(p.blocks.count) * L)
-            tb = p.blocks.shaped(p.t)[:, :, 0].sum(axis=1) / np.minimum(L, p.n - np.arange(p.blocks.count) * L)
+            m = block_means(p.blocks.shaped(res_e[a])[:, :, 0].sum(axis=1), p.blocks)
+            tb = block_means(p.blocks.shaped(p.t)[:, :, 0].sum(axis=1), p.blocks)
             ax.plot(tb, m, ".-", ms=3, lw=0.8)
             ax.set_ylabel(f"{a} block mean (deg/s)")
             ax.set_xlabel("time (s)")

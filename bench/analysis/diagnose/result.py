@@ -34,7 +34,9 @@ class Finding:
     def gain_band(self) -> float:
         """Ratio of the held-out block-mean RMS before/after (the band slow effects live in)."""
         g = self.evidence.get("gain_band")
-        return 1.0 / (1.0 - g) if g is not None and g < 1 else float("inf") if g is not None else float("nan")
+        if g is None:
+            return float("nan")
+        return 1.0 / (1.0 - g) if g < 1 else float("inf")
 
     def as_json(self) -> dict[str, Any]:
         return {"effect": self.effect, "axis": self.axis, "params": self.params,

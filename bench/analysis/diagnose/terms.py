@@ -65,10 +65,10 @@ class Candidate(ABC):
     """Nonlinear parameters that must come out below the top of their grid: a transient whose time
     constant is as long as the data allow is a drift, not an identified transient."""
     family: str | None = None
-    """The generic probe (:data:`PROBES`) that can imitate this term: ``"time"`` for slow terms (any
-    slow structure), ``"rate"`` for static functions of the rate. A term whose family's probe still
-    finds structure after selection must be needed on top of that probe, or it is only a partial
-    explanation (``docs/diagnose.md``, specific evidence)."""
+    """The generic probe that can imitate this term, a key of :data:`FAMILY_PROBE`: ``"time"`` for
+    slow terms, ``"rate"`` for static functions of the rate, ``"specific_force"``, ``"spectrum"``,
+    ``"angle_rate"``. A term whose family's probe still finds structure after selection must be
+    needed on top of that probe, or it is only a partial explanation (``docs/diagnose.md``)."""
     noise_term: bool = False
     """Named from the Allan deviation of the residual (a random process), not fitted as a regressor."""
 
@@ -287,13 +287,7 @@ class GearEccentricity(Candidate):
         return out
 
     def grid(self, p, axis, ctx):
-        r = ctx.resid[axis]
-        hit = p.cache.get(("gear_spectrum", axis))
-        if hit is not None and hit[0] is r:
-            spec = hit[1]
-        else:
-            spec = self.spectrum(p, axis, r)
-            p.cache[("gear_spectrum", axis)] = (r, spec)
+        spec = _per_residual(p, "gear_spectrum", axis, ctx.resid[axis], lambda r: self.spectrum(p, axis, r))
         top = np.argsort(spec)[::-1][: self.SHORTLIST] + 1
         return [{"harmonic": int(N)} for N in top]
 
@@ -545,26 +539,16 @@ class BiasStep(Candidate):
     SHORTLIST = 4
 
     def grid(self, p, axis, ctx):
-        r = ctx.resid[axis]
-        hit = p.cache.get(("step_scan", axis))
-        if hit is not None and hit[0] is r:
-            return hit[1]
-        n = r.shape[0]
-        c = np.cumsum(r - r.mean())[:-1]
-        k = np.arange(1, n)
-        stat = np.abs(c) / np.sqrt(k * (n - k) / n)
-        edge = max(p.blocks.length, 2)
-        stat[: edge] = 0.0
-        stat[-edge:] = 0.0
-        out = []
-        for _ in range(self.SHORTLIST):
-            i = int(np.argmax(stat))
-            if stat[i] <= 0:
-                break
-            out.append({"t_step_s": float(p.t[i + 1])})
-            stat[max(i - 2 * edge, 0): i + 2 * edge] = 0.0
-        p.cache[("step_scan", axis)] = (r, out)
-        return out
+        def scan(r: np.ndarray) -> list[dict[str, Any]]:
+            n = r.shape[0]
+            c = np.cumsum(r - r.mean())[:-1]
+            k = np.arange(1, n)
+            stat = np.abs(c) / np.sqrt(k * (n - k) / n)
+            edge = max(p.blocks.length, 2)
+            stat[: edge] = 0.0
+            stat[-edge:] = 0.0
+            return [{"t_step_s": float(p.t[i + 1])} for i in _peaks(stat, self.SHORTLIST, 2 * edge)]
+        return _per_residual(p, "step_scan", axis, ctx.resid[axis], scan)
 
     def build(self, p, axis, nl, ctx):
         col = _cached(p, ("step", float(nl["t_step_s"])), lambda: (p.t >= nl["t_step_s"]).astype(float)[:, None])
@@ -588,22 +572,11 @@ class Periodic(Candidate):
     SHORTLIST = 4
 
     def grid(self, p, axis, ctx):
-        r = ctx.resid[axis]
-        hit = p.cache.get(("periodogram", axis))
-        if hit is not None and hit[0] is r:
-            return hit[1]
-        f, power = periodogram(r, p.fs)
-        ok = (f >= 2.0 / p.duration_s) & (f <= 0.45 * p.fs)
-        power = np.where(ok, power, 0.0)
-        out = []
-        for _ in range(self.SHORTLIST):
-            i = int(np.argmax(power))
-            if power[i] <= 0:
-                break
-            out.append({"frequency_hz": float(f[i])})
-            power[max(i - 3, 0): i + 4] = 0.0
-        p.cache[("periodogram", axis)] = (r, out)
-        return out
+        def lines(r: np.ndarray) -> list[dict[str, Any]]:
+            f, power = periodogram(r, p.fs)
+            power = np.where((f >= 2.0 / p.duration_s) & (f <= 0.45 * p.fs), power, 0.0)
+            return [{"frequency_hz": float(f[i])} for i in _peaks(power, self.SHORTLIST, 3)]
+        return _per_residual(p, "periodogram", axis, ctx.resid[axis], lines)
 
     def refine_interval(self, p, name, value):
         half = 0.5 / p.duration_s
@@ -623,6 +596,31 @@ class Periodic(Candidate):
     def describe(self, params):
         f = params["frequency_hz"]
         return f"periodic interference {params['amplitude_dps']:.2g} deg/s at {f:.4g} Hz (period {1 / f:.4g} s)"
+
+
+def _peaks(score: np.ndarray, count: int, halfwidth: int) -> list[int]:
+    """Indices of the ``count`` highest positive local maxima of ``score``, each at least
+    ``halfwidth`` samples from a higher one (greedy: take the largest, blank its neighbourhood)."""
+    score = np.array(score, dtype=float)
+    out = []
+    for _ in range(count):
+        i = int(np.argmax(score))
+        if score[i] <= 0:
+            break
+        out.append(i)
+        score[max(i - halfwidth, 0): i + halfwidth + 1] = 0.0
+    return out
+
+
+def _per_residual(p: Prepared, key: str, axis: str, r: np.ndarray, fn: Callable[[np.ndarray], Any]) -> Any:
+    """``fn(r)`` computed once per residual array of ``axis`` (the grid of a round is asked for again
+    while the residual is the same object)."""
+    hit = p.cache.get((key, axis))
+    if hit is not None and hit[0] is r:
+        return hit[1]
+    value = fn(r)
+    p.cache[(key, axis)] = (r, value)
+    return value
 
 
 def periodogram(r: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
