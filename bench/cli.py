@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from bench import __version__
-from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, BenchError, InputError, InputErrors
+from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, KNOWN_ERRORS, InputError, InputErrors
 
 
 class _Parser(argparse.ArgumentParser):
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         err.print(exc.one_line(), markup=False, soft_wrap=True)
         return EXIT_BAD_INPUT
-    except BenchError as exc:
+    except KNOWN_ERRORS as exc:
         if args.debug:
             raise
         err.print(f"bench: {exc}", markup=False, soft_wrap=True)

@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
+
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
@@ -15,6 +17,15 @@ EXIT_BAD_INPUT = 2
 
 class BenchError(Exception):
     """Base class of every error bench raises on purpose."""
+
+
+#: What bench raises on purpose: its own errors and the drivers' typed instrument errors
+#: (``drivers.errors``, re-exported here; drivers import nothing from bench).
+KNOWN_ERRORS: tuple[type[Exception], ...] = (BenchError, InstrumentError)
+
+__all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_BAD_INPUT", "BenchError", "KNOWN_ERRORS", "Location", "InputError",
+           "InputErrors", "DestinationError", "RecorderError", "InstrumentError", "InstrumentTimeout",
+           "ProtocolError", "DeviceFault"]
 
 
 @dataclass
@@ -62,22 +73,6 @@ class DestinationError(InputError):
 
 class RecorderError(BenchError):
     """Writing the run file failed during the run. The runner aborts to the safe state."""
-
-
-class InstrumentError(BenchError):
-    """Base class of instrument faults raised by drivers."""
-
-
-class InstrumentTimeout(InstrumentError):
-    """The instrument did not answer within the timeout."""
-
-
-class ProtocolError(InstrumentError):
-    """The instrument answered something the protocol does not allow (bad frame, NAK, wrong length)."""
-
-
-class DeviceFault(InstrumentError):
-    """The instrument reports a fault of its own (failed built-in test, alarm)."""
 
 
 class InputErrors(InputError):

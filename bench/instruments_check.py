@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from bench.config import LabConfig
-from bench.errors import BenchError
+from bench.errors import KNOWN_ERRORS
 
 
 @dataclass
@@ -82,7 +82,7 @@ def check_instruments(config: LabConfig, *, sim: bool) -> list[CheckRow]:
         endpoint, identity, reading = inst.port, "", ""
         try:
             lab = open_lab(config, [name], sim=sim, realtime=False)
-        except (BenchError, OSError, ValueError) as exc:
+        except (*KNOWN_ERRORS, OSError, ValueError) as exc:
             rows.append(CheckRow(name, transport_of(endpoint), endpoint, "", "", f"cannot open: {exc}"))
             continue
         try:
@@ -92,7 +92,7 @@ def check_instruments(config: LabConfig, *, sim: bool) -> list[CheckRow]:
             identity = " ".join(str(ident.get(k, "")) for k in ("vendor", "model", "serial") if ident.get(k))
             reading = READINGS[inst.driver](drv)
             status = "ok"
-        except (BenchError, OSError, ValueError, KeyError) as exc:
+        except (*KNOWN_ERRORS, OSError, ValueError, KeyError) as exc:
             status = f"{type(exc).__name__}: {exc}"
         finally:
             lab.close()

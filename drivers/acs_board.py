@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 import serial
 
-from bench.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
+from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 from drivers import acs_protocol as proto
 from drivers.acs_protocol import DecodedBatch, FrameType, NakCode
 from drivers.transport import link_bytes_per_s, open_serial

@@ -14,7 +14,7 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
-from bench.errors import ProtocolError
+from drivers.errors import ProtocolError
 from drivers.crc import crc16_xmodem, crc16_xmodem_rows
 
 SYNC = b"\xA5\x5A"

@@ -39,7 +39,7 @@ import can
 import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from bench.errors import InstrumentError
+from drivers.errors import InstrumentError
 from drivers.acs_protocol import DATA_FRAME_LEN
 from drivers.can_transport import CanUrl, open_bus, parse_can_url
 

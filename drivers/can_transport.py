@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import can
 
-from bench.errors import InstrumentError
+from drivers.errors import InstrumentError
 
 INTERFACES = ("virtual", "slcan", "socketcan")
 DEFAULT_NODE = 1

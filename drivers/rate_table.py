@@ -26,8 +26,8 @@ import canopen
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from bench.clock import WallClock
-from bench.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
+from drivers.clock import WallClock
+from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 from drivers.can_transport import open_bus, parse_can_url
 
 EDS_PATH = Path(__file__).with_name("rate_table.eds")

@@ -12,7 +12,7 @@ import re
 
 import serial
 
-from bench.errors import ProtocolError
+from drivers.errors import ProtocolError
 from drivers.stepper_speed import BenchSpeedCalibration
 from drivers.transport import LineChannel, open_serial
 

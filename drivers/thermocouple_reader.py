@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import serial
 
-from bench.errors import DeviceFault, ProtocolError
+from drivers.errors import DeviceFault, ProtocolError
 from drivers.transport import LineChannel, open_serial
 
 OPEN_TC_THRESHOLD = 9.0e37  # the 34970A's overload reading is +9.9E+37

@@ -22,7 +22,7 @@ from typing import Callable
 
 import serial
 
-from bench.errors import DeviceFault, InstrumentError, ProtocolError
+from drivers.errors import DeviceFault, InstrumentError, ProtocolError
 from drivers.transport import LineChannel, open_serial
 
 ACK, NAK, ENQ, ETX = b"\x06", b"\x15", b"\x05", b"\x03"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import serial
 
-from bench.errors import InstrumentError, InstrumentTimeout, ProtocolError
+from drivers.errors import InstrumentError, InstrumentTimeout, ProtocolError
 
 
 def open_serial(url: str, baudrate: int = 115200, timeout_s: float = 0.5) -> serial.SerialBase:

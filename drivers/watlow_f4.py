@@ -29,7 +29,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerType
 
-from bench.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
+from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 
 UNIT_ID = 1  # F4 factory device address 1 (protocols.md section 1 [V])
 DEFAULT_TCP_PORT = 502  # Modbus/TCP registered port (Modbus Messaging on TCP/IP guide)

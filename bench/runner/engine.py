@@ -21,7 +21,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from bench.errors import BenchError, DeviceFault, InstrumentError, RecorderError
+from bench.errors import KNOWN_ERRORS, BenchError, DeviceFault, InstrumentError, RecorderError
 from bench.lab import Lab
 from bench.procedure import Procedure, Step
 from bench.procedure.signals import parse_signal
@@ -540,4 +540,4 @@ class Runner:
 
 def _describe(exc: BaseException) -> str:
     text = str(exc) or type(exc).__name__
-    return text if isinstance(exc, (BenchError,)) else f"{type(exc).__name__}: {text}"
+    return text if isinstance(exc, KNOWN_ERRORS) else f"{type(exc).__name__}: {text}"

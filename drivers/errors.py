@@ -1,0 +1,26 @@
+"""Typed errors every driver raises. Drivers know nothing of ``bench``; ``bench.errors`` re-exports
+these so the application catches them by the same names.
+
+* :class:`InstrumentTimeout`: no answer within the driver's timeout (s);
+* :class:`ProtocolError`: an answer the protocol does not allow (bad frame, NAK, wrong length);
+* :class:`DeviceFault`: the instrument reports a fault of its own (failed built-in test, alarm);
+* :class:`InstrumentError`: their base, also raised for a lost or unopenable link.
+"""
+
+from __future__ import annotations
+
+
+class InstrumentError(Exception):
+    """Base class of instrument faults raised by drivers."""
+
+
+class InstrumentTimeout(InstrumentError):
+    """The instrument did not answer within the timeout."""
+
+
+class ProtocolError(InstrumentError):
+    """The instrument answered something the protocol does not allow (bad frame, NAK, wrong length)."""
+
+
+class DeviceFault(InstrumentError):
+    """The instrument reports a fault of its own (failed built-in test, alarm)."""
