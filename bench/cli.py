@@ -171,7 +171,8 @@ def main(argv: list[str] | None = None) -> int:
 
 # ---- run --------------------------------------------------------------------------------------
 def cmd_run(args: argparse.Namespace, console: Console) -> int:
-    from bench.cli_procedure import load_checked, parse_params
+    from bench.cli_procedure import parse_params
+    from bench.validate import load_checked
     from bench.record import check_destination
     from bench.runner.operator import Operator
     from bench.runner.progress import RichProgress
@@ -195,7 +196,7 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
             ])
     fault_spec = None
     if args.inject_faults is not None:
-        from bench.sim.fault_injection import parse_fault_spec
+        from bench.faults import parse_fault_spec
 
         if not args.sim:
             raise InputError("faults can only be injected into simulated runs; add --sim", None, "--inject-faults")

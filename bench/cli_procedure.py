@@ -12,9 +12,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from bench.config import LabConfig, load_config
-from bench.errors import EXIT_OK, InputError, InputErrors, Location
-from bench.procedure import Procedure, load_procedure
+from bench.errors import EXIT_OK, InputError
+from bench.validate import load_checked
 
 
 def parse_params(items: list[str] | None) -> dict[str, str]:
@@ -26,23 +25,6 @@ def parse_params(items: list[str] | None) -> dict[str, str]:
             raise InputError(f"expected NAME=VALUE such as cold=-20degC, got {item!r}", None, "-p")
         out[name.strip()] = value.strip()
     return out
-
-
-def load_checked(procedure_path: Path, config_path: Path | None, params: dict[str, str]) -> tuple[Procedure, LabConfig | None]:
-    """Load the config (if any) and the procedure validated against it; every problem located."""
-    config = load_config(config_path) if config_path is not None else None
-    kinds = config.kinds() if config is not None else None
-    limits = config.limits() if config is not None else None
-    procedure = load_procedure(procedure_path, params, kinds, limits)
-    if config is not None:
-        missing = [n for n in procedure.instruments if n not in config.instruments]
-        if missing:
-            raise InputErrors([
-                InputError(f"instrument {n!r} is not in config {config_path} (has: {', '.join(config.instruments)})",
-                           procedure.instrument_locations.get(n, Location(str(procedure.path))), "instruments")
-                for n in missing
-            ])
-    return procedure, config
 
 
 def fmt_duration(seconds: float) -> str:

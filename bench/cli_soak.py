@@ -15,7 +15,7 @@ def cmd_soak(args: argparse.Namespace, console: Console) -> int:
     """Soak the simulated lab; exit 0 when nothing crashed, no file is unreadable, no row was lost
     and every abort is explained, else 1."""
     from bench.config import load_config
-    from bench.sim.fault_injection import parse_fault_spec
+    from bench.faults import parse_fault_spec
     from bench.soak import soak
 
     config = load_config(args.config)

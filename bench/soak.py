@@ -1,7 +1,7 @@
 """``bench soak``: the procedure library back to back on the simulated lab, with random faults.
 
 Each run is a normal dry-run (virtual time, its own run file) of the next procedure of the library
-(a seeded shuffle, repeated) with faults drawn by :mod:`bench.sim.fault_injection` at
+(a seeded shuffle, repeated) with faults drawn by :mod:`bench.faults` at
 ``faults_per_hour`` (Poisson, in run time), until the runs add up to ``hours`` of run time. After
 each run the soak reads its file back and measures:
 
@@ -32,7 +32,7 @@ import h5py
 import numpy as np
 
 from bench.errors import InputError
-from bench.sim.fault_injection import FAULT_CLASSES, FaultSpec
+from bench.faults import FAULT_CLASSES, FaultSpec
 
 FAULT_WINDOW_SLACK_S = 10.0
 """Frames missing up to this long (s of run time) after an injected fault on the board's link ended
@@ -110,7 +110,7 @@ def soak(config_path: Path, hours: float, faults_per_hour: float, seed: int, run
          on_run: Callable[[dict[str, Any]], None] | None = None) -> SoakReport:
     """Run ``procedures`` back to back (seeded order) until ``hours`` of run time, injecting faults
     at ``faults_per_hour``; returns the measured :class:`SoakReport`."""
-    from bench.cli_procedure import load_checked
+    from bench.validate import load_checked
     from bench.runner.operator import Operator
     from bench.runner.session import start_run
 

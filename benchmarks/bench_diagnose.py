@@ -1,7 +1,7 @@
 """Discrepancy-engine speed: ``diagnose`` on an 8-hour 1 Hz session (28,800 rows) and a 2-hour
 10 Hz session (72,000 rows), wall time and peak memory, against the baseline fit alone.
 
-Both sessions come from ``bench/sim/sessions.py`` (thermal cycle with continuous rate steps,
+Both sessions come from ``bench/sessions.py`` (thermal cycle with continuous rate steps,
 pump-down and vent, tilt changes, power-on at the start) with two hidden effects each, generated in
 the same run. The named baseline is the baseline fit alone (data preparation + blocked-CV fit of
 bias, cubic temperature bias and scale-factor/misalignment on every axis): ``ratio`` says how many
@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.analysis.diagnose import diagnose  # noqa: E402
 from bench.analysis.diagnose.data import prepare  # noqa: E402
 from bench.analysis.diagnose.engine import Term, baseline_built, build_state  # noqa: E402
-from bench.sim.sessions import make_session  # noqa: E402
+from bench.sessions import make_session  # noqa: E402
 
 TARGET_S = 30.0
 CASES = {

@@ -36,7 +36,7 @@ def main() -> int:
     if not out.stdout.strip():
         sys.exit(f"bench soak printed nothing (exit {out.returncode}):\n{out.stderr[-3000:]}")
     r = json.loads(out.stdout)
-    from bench.sim.fault_injection import FAULT_CLASSES
+    from bench.faults import FAULT_CLASSES
 
     lines = [f"Soak of {r['run_time_h']:.1f} h of run time ({r['runs']} runs of the procedure library) with "
              f"{args.faults_per_hour:g} faults per hour, seed {args.seed}, in {r['wall_time_s']:.0f} s wall: "

@@ -1,7 +1,7 @@
 """``bench diagnose``: hidden effects in simulated sessions must be named exactly, clean sessions
 must give nothing, and the extended model must close the loop.
 
-Sessions come from ``bench/sim/sessions.py`` (thermal cycle with continuous rate steps, pump-down
+Sessions come from ``bench/sessions.py`` (thermal cycle with continuous rate steps, pump-down
 and vent, tilt changes, power-on at the start; the ESTCube-2 stepper bench). Hidden effects get
 random parameters from seeds derived here (``_seed``), never passed to ``diagnose``: it only sees
 the measured columns and the CSV-style metadata (sample rate, latitude).
@@ -23,7 +23,7 @@ from bench.analysis.dataset import Dataset, load_dataset
 from bench.analysis.diagnose import diagnose, write_report
 from bench.errors import InputError
 from bench.model import effects as fx
-from bench.sim.sessions import BaselineSensor, make_session, write_csv
+from bench.sessions import BaselineSensor, make_session, write_csv
 
 VOCABULARY = [
     "thermal_lag", "warmup_transient", "pressure_bias", "gear_eccentricity", "g_sensitivity",

@@ -20,7 +20,7 @@ from bench.procedure import parse_procedure
 from bench.record import read_run_summary
 from bench.runner.operator import Operator
 from bench.runner.session import start_run
-from bench.sim.fault_injection import FAULT_CLASSES, parse_fault_spec, plan_faults
+from bench.faults import FAULT_CLASSES, parse_fault_spec, plan_faults
 from tests.conftest import ROOT, SIM_CONFIG
 
 

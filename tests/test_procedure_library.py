@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.cli_procedure import load_checked
+from bench.validate import load_checked
 from bench.errors import InputError, InputErrors
 from bench.procedure import parse_procedure
 

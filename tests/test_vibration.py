@@ -1,4 +1,4 @@
-"""Vibration physics of the simulated world (bench/sim/vibration.py, docs/vibration.md).
+"""Vibration physics of the simulated world (bench/model/vibration.py, docs/vibration.md).
 
 Reference numbers come from the NPSAT1 thesis: Table 1 (GEVS component minimum workmanship random
 vibration, 6.8 grms, 1 min/axis) and section IV.F (low-level sine sweep 20-1000 Hz, 0.25 g,
@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from scipy import signal
 
 from bench.errors import InputError
-from bench.sim.vibration import (
+from bench.model.vibration import (
     AsdProfile,
     RandomVibration,
     RandomVibrationSpec,

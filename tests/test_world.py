@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from bench.sim.world import World, WorldParams, mount_matrix
+from bench.model.geometry import mount_matrix
+from bench.sim.world import World, WorldParams
 
 OMEGA = 360.0 / 86164.0905  # deg/s, sidereal
 LAT = 36.4

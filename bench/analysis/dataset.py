@@ -177,7 +177,7 @@ def dataset_from_run(path: str | Path) -> Dataset:
     ``table_angle_deg``, ``chamber_temp_c`` (chamber air), ``pressure_torr`` (log-interpolated).
     """
     from bench.record.reader import read_run_summary, read_stream
-    from bench.sim.world import mount_matrix
+    from bench.model.geometry import mount_matrix
 
     p = Path(path)
     # only the events read below (operator prompts, import notes): a long run logs every command

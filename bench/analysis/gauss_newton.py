@@ -497,7 +497,7 @@ def _tilt_from_run(ds: Any) -> np.ndarray | None:
 
 
 def _mount(value: Any, where: Location) -> np.ndarray:
-    from bench.sim.world import mount_matrix
+    from bench.model.geometry import mount_matrix
 
     try:
         return mount_matrix(str(value).strip())

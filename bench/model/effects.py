@@ -330,9 +330,9 @@ def rate_derivative(time_s: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def mount_matrix(up: str) -> np.ndarray:
-    """Sensor-from-platter rotation for sensor axis ``up`` along the platter normal (as
-    :func:`bench.sim.world.mount_matrix`)."""
-    from bench.sim.world import mount_matrix as _mm
+    """Sensor-from-platter rotation for sensor axis ``up`` along the platter normal
+    (:func:`bench.model.geometry.mount_matrix`); a bad axis is an input error."""
+    from bench.model.geometry import mount_matrix as _mm
 
     try:
         return _mm(up)

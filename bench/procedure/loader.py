@@ -386,7 +386,7 @@ class _Expander:
 
     def _vibration(self, node: Node, fname: str, doc: _Doc) -> str | None:
         """A vibration profile file relative to the procedure, loaded now so its errors show at validation."""
-        from bench.sim.vibration import load_vibration
+        from bench.model.vibration import load_vibration
 
         if not isinstance(node.value, str):
             self.errors.append(InputError("expected the path of a vibration file", node.location, fname))

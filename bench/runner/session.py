@@ -24,7 +24,7 @@ class RunSession:
     lab: Lab
     runner: Runner
     faults: list[Any]
-    """The faults scheduled by ``fault_spec`` (:class:`bench.sim.fault_injection.ScheduledFault`)."""
+    """The faults scheduled by ``fault_spec`` (:class:`bench.faults.ScheduledFault`)."""
 
 
 def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, config_path: Path, runs_dir: Path,
@@ -32,7 +32,7 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
               fault_spec: Any = None) -> RunSession:
     """Create the run file, open the lab (recording every byte from the first one: replay answers
     it), and build the runner; with ``fault_spec`` (a parsed ``--inject-faults``) the progress sink is
-    wrapped by a :class:`bench.sim.fault_injection.FaultInjector`. On failure everything opened so far
+    wrapped by a :class:`bench.faults.FaultInjector`. On failure everything opened so far
     is closed and the run file is finalised as aborted with the reason."""
     lab: Lab | None = None
     runner: Runner | None = None
@@ -63,7 +63,7 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
     recorder.event("lab_open", "runner", "instruments open", t_s=lab.clock.now())
     faults: list[Any] = []
     if fault_spec is not None:
-        from bench.sim.fault_injection import FaultInjector, plan_faults
+        from bench.faults import FaultInjector, plan_faults
 
         try:
             faults = plan_faults(fault_spec, lab.kinds, procedure.estimated_duration_s())

@@ -241,7 +241,7 @@ def mount(r: "Runner", step: Step) -> tuple[str, str]:
 def vibrate(r: "Runner", step: Step) -> tuple[str, str]:
     """Run a shaker profile along an axis. On hardware the shaker has its own controller: the
     operator runs it and confirms. In a dry-run the simulated world shakes the unit."""
-    from bench.sim.vibration import load_vibration
+    from bench.model.vibration import load_vibration
 
     p = step.params
     spec = load_vibration(Path(p["profile"]))

@@ -23,12 +23,13 @@ from typing import Any
 
 import numpy as np
 
+from bench.model.geometry import mount_matrix
 from bench.model.imu_simple import Environment, earth_rate_dps
 from bench.params import dataclass_from_dict
 from bench.sim.chamber import Chamber, ChamberParams
 from bench.sim.stage import RotatingStage
 from bench.sim.table_motion import TableMotion
-from bench.sim.vibration import VibrationSchedule
+from bench.model.vibration import VibrationSchedule
 
 
 @dataclass
@@ -111,30 +112,6 @@ class World:
     def set_unit_power(self, t_s: float, on: bool) -> None:
         """The unit's electronics switched on or off at run time ``t_s`` (s): self-heating."""
         self.chamber.set_unit_power(t_s, on)
-
-
-def mount_matrix(up: str) -> np.ndarray:
-    """Rotation from platter to sensor frame putting sensor axis ``up`` on the platter normal.
-
-    +x: sensor (x, y, z) = platter (z, x, y); +y: (y, z, x); +z: identity (cyclic, right-handed);
-    a negative axis adds a half turn about the next axis.
-    """
-    sign = -1.0 if up.startswith("-") else 1.0
-    axis = up.lstrip("+-")
-    if axis not in ("x", "y", "z"):
-        raise ValueError(f"expected x, y, z, -x, -y or -z, got {up!r}")
-    k = "xyz".index(axis)
-    # platter z goes to sensor axis k; platter x, y to the next two (cyclic)
-    m = np.zeros((3, 3))
-    m[k, 2] = 1.0
-    m[(k + 1) % 3, 0] = 1.0
-    m[(k + 2) % 3, 1] = 1.0
-    if sign < 0:
-        flip = np.eye(3)
-        flip[k, k] = -1.0
-        flip[(k + 1) % 3, (k + 1) % 3] = -1.0
-        m = flip @ m
-    return m
 
 
 def _rotate_z_rows(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:

@@ -252,7 +252,7 @@ def make_session(duration_s: float = 3600.0, rate_hz: float = 1.0, effects: Sequ
         raise InputError(f"session kind must be 'tvac' or 'stepper', got {kind!r}")
     if not duration_s > 0 or not rate_hz > 0:
         raise InputError("session duration and sample rate must be > 0")
-    from bench.sim.world import mount_matrix
+    from bench.model.geometry import mount_matrix
 
     try:
         m = mount_matrix(mount)

@@ -1,0 +1,27 @@
+"""A procedure validated against a lab config: the one path ``validate``, ``plan``, ``run`` and
+``soak`` take to their procedure (every problem located, exit 2 at the CLI)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from bench.config import LabConfig, load_config
+from bench.errors import InputError, InputErrors, Location
+from bench.procedure import Procedure, load_procedure
+
+
+def load_checked(procedure_path: Path, config_path: Path | None, params: dict[str, str]) -> tuple[Procedure, LabConfig | None]:
+    """Load the config (if any) and the procedure validated against it; every problem located."""
+    config = load_config(config_path) if config_path is not None else None
+    kinds = config.kinds() if config is not None else None
+    limits = config.limits() if config is not None else None
+    procedure = load_procedure(procedure_path, params, kinds, limits)
+    if config is not None:
+        missing = [n for n in procedure.instruments if n not in config.instruments]
+        if missing:
+            raise InputErrors([
+                InputError(f"instrument {n!r} is not in config {config_path} (has: {', '.join(config.instruments)})",
+                           procedure.instrument_locations.get(n, Location(str(procedure.path))), "instruments")
+                for n in missing
+            ])
+    return procedure, config
