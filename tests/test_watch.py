@@ -19,7 +19,7 @@ from rich.console import Console
 
 from bench.errors import EXIT_OK, InputError
 from bench.record import Column, RunRecorder
-from bench.runner.engine import ACS_COLUMNS
+from bench.runner.ingest import ACS_COLUMNS
 from bench.watch import SPARK_CHARS, StepTracker, snapshot, sparkline, watch
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -224,7 +224,7 @@ WRITER = textwrap.dedent(
     from pathlib import Path
     from bench.record import Column, RunRecorder
     from bench.errors import RecorderError
-    from bench.runner.engine import ACS_COLUMNS
+    from bench.runner.ingest import ACS_COLUMNS
 
     rec = RunRecorder.create(Path(sys.argv[1]), procedure_name="cross_process", procedure_text="p", procedure_path="p.yaml",
                              config_text="c", config_path="c.yaml", mode="sim", software_version="test", flush_interval_s=0.05)

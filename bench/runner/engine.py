@@ -14,45 +14,21 @@ evaluated, the run file is flushed, pause and abort requests are honoured.
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
-import numpy as np
-
-from bench.errors import KNOWN_ERRORS, BenchError, DeviceFault, InstrumentError, RecorderError
+from bench.errors import BenchError, DeviceFault, InstrumentError, RecorderError
 from bench.lab import Lab
 from bench.procedure import Procedure, Step
-from bench.procedure.signals import parse_signal
-from bench.record import Column, RunRecorder
+from bench.record import RunRecorder
 from bench.runner import steps as step_handlers
+from bench.runner.ingest import StreamIngest
+from bench.runner.instruments import Polled, Streaming, link_baudrate
+from bench.runner.monitor import InterlockTrip, LabMonitor, describe
 from bench.runner.operator import Operator
 from bench.runner.steps import StepAbort
 from bench.runner.windows import Windows
-
-ACS_COLUMNS = [
-    Column("counter", "1", "u2"),
-    Column("board_time", "s", "f8"),
-    Column("gyro", "deg/s", "f8", (3,)),
-    Column("accel", "g", "f8", (3,)),
-    Column("mag", "uT", "f8", (3,)),
-    Column("temp", "degC", "f8", (3,)),
-    Column("status", "1", "u2"),
-]
-"""Stream layout of a sensor board: temp = (gyro die, accel die, board)."""
-
-COMPENSATED_COLUMN = Column("gyro_comp", "deg/s", "f8", (3,))
-"""Added when the board has a calibration: the gyro rates compensated with NPSAT1 Eq. 2."""
-
-RECONNECT_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
-"""Waits between reconnection attempts after a link fault (s of run time); the last repeats."""
-
-CHAMBER_SAFETY_MARGIN_C = 5.0
-"""A chamber temperature reading more than this beyond the chamber's set-point limits (defaults, lab
-config, procedure: the narrowest) aborts the run whatever the procedure's interlocks say: the
-controller is not controlling (runaway heater or cooler, failed sensor). Our choice [U]: above the
-overshoot of a controlled ramp, below damage."""
 
 POLL_PERIOD_VIRTUAL_S = 5.0  # run time between stream polls in a dry-run (s): 500 frames per batch at 100 Hz
 POLL_PERIOD_WALL_S = 0.1  # on the wall clock: keeps abort latency and progress updates short
@@ -105,10 +81,6 @@ class RunResult:
         return self.status == "completed" and not self.failed_steps
 
 
-class InterlockTrip(BenchError):
-    """An interlock's signal left its limits."""
-
-
 class Runner:
     """Runs one procedure on one lab into one recorder."""
 
@@ -122,17 +94,11 @@ class Runner:
         self.abort_reason = ""
         self.current_step = -1
         self.outcomes: list[StepOutcome] = []
-        self.stream_keys: dict[str, str] = {}
-        self.stream_stats: dict[str, dict[str, int]] = {}
-        self._time_offset: dict[str, float | None] = {}
-        self._last_gyro: dict[str, np.ndarray] = {}
-        self._last_stream: dict[str, dict[str, np.ndarray]] = {}
-        self._last_frame_t: dict[str, float] = {}
-        self.monitor_keys: dict[str, str] = {}
-        self._monitor_due: dict[str, float] = {}
-        self._last_monitor: dict[str, dict[str, float]] = {}
-        self.streaming: set[str] = set()
         self.windows = Windows()
+        self.ingest = StreamIngest(recorder, self.clock, self.windows, lambda: self.current_step)
+        """The streaming instruments (sensor boards): frames into the run file and the windows."""
+        self.monitor = LabMonitor(self)
+        """The polled instruments, interlocks, the lab's safety envelope, link recovery."""
         self.results: dict[str, dict] = {}
         self.in_vacuum = False
         self.paused = False
@@ -152,7 +118,8 @@ class Runner:
         counting; polled instruments, streams and interlocks stay under watch."""
         self.paused = not self.paused
 
-    def _check_abort(self) -> None:
+    def check_abort(self) -> None:
+        """Raise :class:`AbortRequested` if an abort was asked for (prints pending notices first)."""
         self.flush_notices()
         if self.abort_reason:
             raise AbortRequested(self.abort_reason)
@@ -167,21 +134,17 @@ class Runner:
         """Identify every instrument, declare the streams, start the recorder (SWMR)."""
         for name, drv in self.lab.instruments.items():
             info = drv.identify()
-            info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=str(getattr(getattr(drv, "port", None), "baudrate", "")))
-            comp = getattr(drv, "compensation", None)
-            if comp is not None:
-                info["compensation"] = comp.describe()
+            info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=link_baudrate(drv))
+            if drv.streams and isinstance(drv, Streaming):
+                if drv.compensation is not None:
+                    info["compensation"] = drv.compensation.describe()
+                self.rec.add_instrument(name, {k: str(v) for k, v in info.items()})
+                self.ingest.declare(name, drv)
+                continue
             self.rec.add_instrument(name, {k: str(v) for k, v in info.items()})
-            if not drv.streams:
-                if hasattr(drv, "monitor_columns"):
-                    interval = self.lab.poll_intervals.get(name, 1.0)
-                    cols = [Column(c, u, "f8") for c, u in drv.monitor_columns()]
-                    self.monitor_keys[name] = self.rec.add_stream(name, cols, "monitor", rate_hz=1.0 / interval)
-                    self._monitor_due[name] = 0.0
-                continue  # an instrument without a data stream: polled, its commands recorded
-            self.stream_keys[name] = self.rec.add_stream(name, ACS_COLUMNS + ([COMPENSATED_COLUMN] if comp is not None else []))
-            self.stream_stats[name] = {"frames": 0, "crc_errors": 0, "dropped_frames": 0, "garbage_bytes": 0}
-            self._time_offset[name] = None
+            if isinstance(drv, Polled):
+                self.monitor.declare(name, drv)
+            # else: an instrument without readings; its commands are recorded
         for lock in self.procedure.interlocks:
             inst = lock.signal.split(".", 1)[0]
             if inst not in self.lab.instruments:
@@ -193,7 +156,7 @@ class Runner:
         self.rec.event("procedure", "runner", self.procedure.name, t_s=self.clock.now(), data=json.dumps({
             "path": str(self.procedure.path), "parameters": self.procedure.parameters, "sources": self.procedure.sources,
             "steps": len(self.procedure.steps), "clock": "virtual" if self.clock.virtual else "wall"}, default=str).encode())
-        self._poll_monitors(self.clock.now())
+        self.monitor.poll(self.clock.now())
 
     def run(self) -> RunResult:
         """Execute every step; never raises for instrument or recorder faults (they abort the run)."""
@@ -204,7 +167,7 @@ class Runner:
         try:
             self.prepare()
             for step in self.procedure.steps:
-                self._check_abort()
+                self.check_abort()
                 self.current_step = step.index
                 self.progress.step(step.index + 1, total, step)
                 t0 = self.clock.now()
@@ -218,15 +181,15 @@ class Runner:
                 self.rec.tick(t1)
         except (AbortRequested, InstrumentError, RecorderError, StepAbort, InterlockTrip, OSError, ValueError) as exc:
             status = "aborted"
-            self.abort_reason = self.abort_reason or _describe(exc)
+            self.abort_reason = self.abort_reason or describe(exc)
             self._abort_path()
         finally:
             self.flush_notices()
             self.progress.stop(self.clock.now())
         run_time = self.clock.now()
         status = self._close(status)
-        rows = {name: self.rec.rows_written(key) for name, key in {**self.stream_keys, **self.monitor_keys}.items()}
-        return RunResult(status, self.abort_reason, self.outcomes, run_time, time.monotonic() - wall0, rows, self.stream_stats,
+        rows = {name: self.rec.rows_written(key) for name, key in {**self.ingest.keys, **self.monitor.keys}.items()}
+        return RunResult(status, self.abort_reason, self.outcomes, run_time, time.monotonic() - wall0, rows, self.ingest.stats,
                          list(self.results.values()))
 
     def _abort_path(self) -> None:
@@ -243,15 +206,15 @@ class Runner:
             try:
                 self._safe_state(name)
             except Exception as exc:  # noqa: BLE001 - the abort path must reach every instrument and the file
-                self._event("error", name, f"safe state failed: {_describe(exc)}")
-                self.progress.message(f"{name}: safe state failed: {_describe(exc)}")
+                self._event("error", name, f"safe state failed: {describe(exc)}")
+                self.progress.message(f"{name}: safe state failed: {describe(exc)}")
                 continue
-            self._event("safe_state", name, "streaming stopped" if name in self.stream_keys else "safe state reached")
-            if name in self.stream_keys:
+            self._event("safe_state", name, "streaming stopped" if name in self.ingest.keys else "safe state reached")
+            if name in self.ingest.keys:
                 try:
                     self._drain(name)  # salvage the last frames; the instrument is already safe
                 except Exception as exc:  # noqa: BLE001
-                    self._event("error", name, f"last frames not read: {_describe(exc)}")
+                    self._event("error", name, f"last frames not read: {describe(exc)}")
 
     def _safe_state(self, name: str) -> None:
         """Bring ``name`` to its safe state; a link fault is retried through a reconnection (within
@@ -261,9 +224,9 @@ class Runner:
         except DeviceFault:
             raise
         except (InstrumentError, OSError) as exc:
-            self._reconnect(name, exc, aborting=True)
+            self.monitor.reconnect(name, exc, aborting=True)
             self.lab.instruments[name].safe_state()
-        self.streaming.clear()
+        self.ingest.streaming.clear()
 
     def _event(self, kind: str, source: str, message: str, step: int = -1) -> None:
         """Record an event on the abort path, where the recorder itself may be what failed."""
@@ -278,14 +241,14 @@ class Runner:
             self.rec.event("run_end", "runner", status if not self.abort_reason else f"{status}: {self.abort_reason}", t_s=self.clock.now())
             self.rec.close(status, self.abort_reason)
         except (RecorderError, OSError, ValueError) as exc:
-            self.abort_reason = self.abort_reason or f"recorder: {_describe(exc)}"
+            self.abort_reason = self.abort_reason or f"recorder: {describe(exc)}"
             try:
                 self.rec.close("aborted", self.abort_reason)
             except (RecorderError, OSError, ValueError):
                 pass
             if self.rec.closed:
                 return "aborted"  # finalised as aborted with the recorder's reason (e.g. disk nearly full)
-            raise RecorderError(f"the run file could not be finalised: {_describe(exc)}") from None
+            raise RecorderError(f"the run file could not be finalised: {describe(exc)}") from None
         return status
 
     # ---- waiting ----------------------------------------------------------------------------
@@ -299,7 +262,7 @@ class Runner:
         if condition is not None and condition():
             return True
         while True:
-            self._check_abort()
+            self.check_abort()
             now = self.clock.now()
             if self.paused:
                 self._hold_while_paused(period)
@@ -308,15 +271,15 @@ class Runner:
                 continue
             if now >= t_end:
                 return condition is None
-            wake = min([next_drain, t_end, *self._monitor_due.values()])
+            wake = min([next_drain, t_end, *self.monitor.due.values()])
             self.clock.sleep_until(max(wake, now))
             t = self.clock.now()
-            self._poll_monitors(t)
+            self.monitor.poll(t)
             if t + 1e-9 >= next_drain:
                 next_drain = min(t + period, t_end)
-                for name in list(self.streaming):
-                    self._guarded(name, lambda n=name: self._drain(n))
-                self._check_stalls(self.clock.now())
+                for name in list(self.ingest.streaming):
+                    self.monitor.guarded(name, lambda n=name: self._drain(n))
+                self.monitor.check_stalls(self.clock.now())
                 self.rec.tick(self.clock.now())
                 self.progress.advance(self.clock.now(), self._readings())
             if condition is not None and condition():
@@ -326,11 +289,11 @@ class Runner:
         self.progress.message("paused: timed steps are on hold, instruments stay under watch (pause again to resume)")
         self._event("pause", "operator", "paused")
         while self.paused:
-            self._check_abort()
+            self.check_abort()
             now = self.clock.now()
-            self.clock.sleep_until(min([now + period, *self._monitor_due.values()]) if self._monitor_due else now + period)
-            self._poll_monitors(self.clock.now())
-            for name in list(self.streaming):
+            self.clock.sleep_until(min([now + period, *self.monitor.due.values()]))
+            self.monitor.poll(self.clock.now())
+            for name in list(self.ingest.streaming):
                 self._drain(name)
             self.rec.tick(self.clock.now())
             if not self.clock.virtual:
@@ -341,203 +304,31 @@ class Runner:
     def recording(self, name: str, window: str, meta: dict, body: Callable[[], object]) -> int:
         """Stream instrument ``name`` into window ``window`` while ``body()`` runs; returns rows."""
         drv = self.lab.instruments[name]
-        before = self.rec.rows_written(self.stream_keys[name])
-        self._time_offset[name] = None
+        before = self.rec.rows_written(self.ingest.keys[name])
         self.windows.start(window, self.clock.now(), meta)
         drv.start_stream()
-        self.streaming.add(name)
-        self._last_frame_t[name] = self.clock.now()
+        self.ingest.begin(name)
         try:
             body()
         finally:
-            self.streaming.discard(name)
+            self.ingest.end(name)
         self.lab.instruments[name].stop_stream()  # the driver may have been reopened after a link fault
         self._drain(name)
         self.windows.end(window, self.clock.now())
-        return self.rec.rows_written(self.stream_keys[name]) - before
+        return self.rec.rows_written(self.ingest.keys[name]) - before
 
     # ---- signals ----------------------------------------------------------------------------
     def poll_interval(self, signal: str) -> float:
-        return self.lab.poll_intervals.get(signal.split(".", 1)[0], 1.0)
+        """Poll interval of the instrument of ``signal`` (s)."""
+        return self.monitor.interval(signal.split(".", 1)[0])
 
     def read_signal(self, signal: str, fresh: bool = False) -> float:
-        """Latest value of ``INSTRUMENT.COLUMN[.AXIS]``: a polled reading (``fresh``: read now) or
-        the newest frame of a stream. NaN when nothing has been read yet."""
-        inst, column, axis = parse_signal(signal)
-        if inst in self.monitor_keys:
-            if fresh:
-                self._poll_one(inst, self.clock.now())
-            return float(self._last_monitor.get(inst, {}).get(column, float("nan")))
-        last = self._last_stream.get(inst, {}).get(column)
-        if last is None:
-            return float("nan")
-        return float(last[axis if axis is not None else 0])
+        """Latest value of ``INSTRUMENT.COLUMN[.AXIS]`` (see :meth:`LabMonitor.read_signal`)."""
+        return self.monitor.read_signal(signal, fresh)
 
-    def _poll_monitors(self, t: float) -> None:
-        """Read every polled instrument whose interval has come, log a row, evaluate interlocks."""
-        for name, due in list(self._monitor_due.items()):
-            if t + 1e-9 < due:
-                continue
-            self._guarded(name, lambda n=name: self._poll_one(n, self.clock.now()))
-            interval = self.lab.poll_intervals.get(name, 1.0)
-            self._monitor_due[name] = due + interval if due + interval > t else t + interval
-
-    def _poll_one(self, name: str, t: float) -> None:
-        values = self.lab.instruments[name].monitor()
-        self.rec.append(self.monitor_keys[name], np.array([t]), **{k: np.array([v], dtype=float) for k, v in values.items()})
-        self._last_monitor[name] = values
-        if self.windows.any_open:
-            for col, v in values.items():
-                self.windows.feed_one(f"{name}.{col}", t, float(v))
-        self._check_interlocks(name)
-        self._check_lab_safety(name, values)
-
-    # ---- link faults ------------------------------------------------------------------------
-    def _guarded(self, name: str, read: Callable[[], object]) -> None:
-        """Run an idempotent read (a polled reading, a stream drain); a link fault (timeout, lost
-        port, garbled answer) is recovered by reconnecting with backoff, the gap recorded. A
-        fault the instrument reports itself (DeviceFault) is not a link fault: it aborts."""
-        try:
-            read()
-        except DeviceFault:
-            raise
-        except (InstrumentError, OSError) as exc:
-            self._reconnect(name, exc)
-            read()
-
-    def _reconnect(self, name: str, exc: BaseException, aborting: bool = False) -> None:
-        t0 = self.clock.now()
-        limit = self.lab.reconnect_timeouts.get(name, 30.0)
-        self.rec.event("fault", name, f"link fault: {_describe(exc)}; reconnecting (up to {limit:g} s)", t_s=t0, step=self.current_step)
-        self.progress.message(f"{name}: link fault ({_describe(exc)}); reconnecting")
-        attempt, last = 0, exc
-        while True:
-            if not aborting:
-                self._check_abort()
-            wait = RECONNECT_BACKOFF_S[min(attempt, len(RECONNECT_BACKOFF_S) - 1)]
-            if self.clock.now() - t0 + wait > limit:
-                raise InstrumentError(f"{name}: link lost ({_describe(last)}); not restored within {limit:g} s")
-            self.clock.sleep(wait)
-            self.progress.advance(self.clock.now(), f"{name}: reconnecting (attempt {attempt + 1})")
-            attempt += 1
-            try:
-                drv = self.lab.reopen(name)
-                drv.identify()
-                if name in self.monitor_keys:
-                    drv.monitor_columns()  # a fresh driver sets its instrument up again (thermocouple scan list)
-                if not aborting and name in self.streaming and not drv.get_config()["streaming"]:
-                    drv.start_stream()
-                break
-            except DeviceFault:
-                raise
-            except (InstrumentError, OSError) as again:
-                last = again
-        t1 = self.clock.now()
-        for w in self.windows.all.values():
-            if w.open:
-                w.meta.setdefault("gaps_s", []).append([t0, t1])
-        self.rec.event("gap", name, f"link restored after {t1 - t0:.1f} s ({attempt} attempt(s)); no data from {name} in between",
-                       t_s=t1, step=self.current_step, data=json.dumps({"t_start_s": t0, "t_end_s": t1, "attempts": attempt}).encode())
-        self.progress.message(f"{name}: link restored after {t1 - t0:.1f} s")
-
-    def _check_interlocks(self, inst: str) -> None:
-        for lock in self.procedure.interlocks:
-            if lock.stall_s is not None or not lock.signal.startswith(inst + "."):
-                continue
-            if lock.active == "vacuum" and not self.in_vacuum:
-                continue
-            v = self.read_signal(lock.signal)
-            if math.isnan(v):
-                if inst in self._last_monitor and lock.signal.split(".")[1] in self._last_monitor[inst]:
-                    self._trip(f"interlock {lock.name!r}: {lock.signal} has no valid reading (open sensor?)", lock)
-                continue
-            if (lock.minimum is not None and v < lock.minimum) or (lock.maximum is not None and v > lock.maximum):
-                lim = f"min {lock.minimum:g}" if lock.minimum is not None and v < lock.minimum else f"max {lock.maximum:g}"
-                self._trip(f"interlock {lock.name!r}: {lock.signal} = {v:.4g} beyond {lim}", lock)
-
-    def _check_lab_safety(self, inst: str, values: dict[str, float]) -> None:
-        """Always-on limits of the lab, independent of the procedure's interlocks: the chamber's
-        air and mount temperatures stay within its set-point limits ± CHAMBER_SAFETY_MARGIN_C."""
-        if self.lab.kinds.get(inst) != "tvac":
-            return
-        from bench.procedure.limits import effective_limits
-
-        lo, hi, src = effective_limits("tvac", self.lab.config_limits.get(inst, {}), self.procedure.limits.get(inst, {}))["set_point"]
-        for col in ("air_temp", "mount_temp"):
-            v = values.get(col)
-            if v is None or math.isnan(v):
-                continue
-            if (lo is not None and v < lo - CHAMBER_SAFETY_MARGIN_C) or (hi is not None and v > hi + CHAMBER_SAFETY_MARGIN_C):
-                reason = (f"lab safety: {inst}.{col} = {v:.1f} degC beyond the chamber limits "
-                          f"{lo:g}..{hi:g} degC ({src}) by more than {CHAMBER_SAFETY_MARGIN_C:g} degC: the chamber is not under control")
-                self.request_abort(reason)
-                raise InterlockTrip(reason)
-
-    def _check_stalls(self, t: float) -> None:
-        for lock in self.procedure.interlocks:
-            if lock.stall_s is None or lock.signal not in self.streaming:
-                continue
-            gap = t - self._last_frame_t.get(lock.signal, t)
-            if gap > lock.stall_s:
-                self._trip(f"interlock {lock.name!r}: no frames from {lock.signal} for {gap:.1f} s (limit {lock.stall_s:g} s)", lock)
-
-    def _trip(self, reason: str, lock) -> None:
-        self.request_abort(reason)
-        raise InterlockTrip(reason)
-
-    # ---- streams ----------------------------------------------------------------------------
     def _drain(self, name: str) -> int:
-        """Poll instrument ``name`` and append its decoded frames to the run file; returns rows."""
-        drv = self.lab.instruments[name]
-        batch = drv.poll()
-        stats = self.stream_stats[name]
-        if batch.crc_errors or batch.dropped_frames or batch.garbage_bytes:
-            self.rec.event(
-                "stream", name,
-                f"link errors: {batch.crc_errors} CRC errors, {batch.dropped_frames} dropped frames, {batch.garbage_bytes} garbage bytes",
-                t_s=self.clock.now(), step=self.current_step,
-            )
-        stats["crc_errors"] += batch.crc_errors
-        stats["dropped_frames"] += batch.dropped_frames
-        stats["garbage_bytes"] += batch.garbage_bytes
-        n = batch.counter.shape[0]
-        if n == 0:
-            return 0
-        if self._time_offset[name] is None:
-            # Map board time to run time: the newest frame of the first batch arrived just now.
-            self._time_offset[name] = self.clock.now() - float(batch.board_time_s[-1])
-        time_s = batch.board_time_s + self._time_offset[name]
-        extra = {"gyro_comp": drv.compensated_gyro(batch)} if getattr(drv, "compensation", None) is not None else {}
-        self.rec.append(
-            self.stream_keys[name], time_s,
-            counter=batch.counter, board_time=batch.board_time_s, gyro=batch.gyro_dps, accel=batch.accel_g,
-            mag=batch.mag_ut, temp=batch.temp_degc, status=batch.status, **extra,
-        )
-        stats["frames"] += n
-        self._last_frame_t[name] = float(time_s[-1])
-        columns = {"gyro": batch.gyro_dps, "accel": batch.accel_g, "mag": batch.mag_ut, "temp": batch.temp_degc}
-        self._last_stream[name] = {c: v[-1] for c, v in columns.items()}
-        self._last_gyro[name] = batch.gyro_dps.mean(axis=0)
-        if self.windows.any_open:
-            for c, v in columns.items():
-                for k, axis in enumerate("xyz"):
-                    self.windows.feed(f"{name}.{c}.{axis}", time_s, v[:, k])
-                if c == "temp":
-                    self.windows.feed(f"{name}.temp", time_s, v[:, 0])
-        return n
+        """Poll streaming instrument ``name`` into the run file; returns rows."""
+        return self.ingest.drain(name, self.lab.instruments[name])
 
     def _readings(self) -> str:
-        parts = []
-        for name in self.streaming:
-            g = self._last_gyro.get(name)
-            if g is not None:
-                t = self._last_stream.get(name, {}).get("temp")
-                parts.append(f"gyro {g[0]:+.3f} {g[1]:+.3f} {g[2]:+.3f} deg/s" + (f", {t[0]:.1f} degC" if t is not None else ""))
-        for name, vals in self._last_monitor.items():
-            parts.append(f"{name} " + " ".join(f"{k} {v:.4g}" for k, v in list(vals.items())[:3]))
-        return "; ".join(parts)
-
-
-def _describe(exc: BaseException) -> str:
-    text = str(exc) or type(exc).__name__
-    return text if isinstance(exc, KNOWN_ERRORS) else f"{type(exc).__name__}: {text}"
+        return "; ".join(self.ingest.readings() + self.monitor.readings())

@@ -1,0 +1,84 @@
+"""What the runner needs from an instrument: small Protocols instead of attribute probing.
+
+Drivers satisfy them structurally (they import nothing from bench). Every driver is an
+:class:`Instrument`; one that is read periodically is also :class:`Polled`; one that streams
+frames (the sensor board) is :class:`Streaming`. The step handlers reach instrument-specific
+commands (``set_point``, ``set_rate``…) only for the kinds the procedure validator allowed for
+that step.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class Instrument(Protocol):
+    """Every driver: identified at the start of a run, brought to its safe state on abort."""
+
+    kind: str
+    streams: bool
+
+    def identify(self) -> dict[str, str]:
+        """Identity strings (model, serial, firmware…) recorded in the run file."""
+
+    def safe_state(self) -> None:
+        """Put the instrument where nothing can be harmed (heaters off, table stopped…)."""
+
+    def close(self) -> None:
+        """Release the link."""
+
+
+@runtime_checkable
+class Polled(Protocol):
+    """An instrument read at its poll interval; each reading is one row of ``/streams/NAME/monitor``."""
+
+    def monitor_columns(self) -> list[tuple[str, str]]:
+        """``(column, unit)`` of each reading; also sets the instrument up for polling."""
+
+    def monitor(self) -> dict[str, float]:
+        """One reading of every column (NaN where the instrument has no valid value)."""
+
+
+class FrameBatch(Protocol):
+    """Decoded frames of one poll of a streaming instrument (``drivers.acs_protocol.DecodedBatch``)."""
+
+    counter: np.ndarray
+    board_time_s: np.ndarray
+    gyro_dps: np.ndarray
+    accel_g: np.ndarray
+    mag_ut: np.ndarray
+    temp_degc: np.ndarray
+    status: np.ndarray
+    crc_errors: int
+    garbage_bytes: int
+    dropped_frames: int
+
+
+@runtime_checkable
+class Streaming(Protocol):
+    """An instrument that streams sensor frames while a recording window is open."""
+
+    compensation: Any
+    """The board's calibration (``describe()``, used by ``compensated_gyro``) or None."""
+
+    def start_stream(self) -> None: ...
+
+    def stop_stream(self) -> None: ...
+
+    def poll(self) -> FrameBatch:
+        """Every frame received since the last poll."""
+
+    def compensated_gyro(self, batch: FrameBatch) -> np.ndarray:
+        """Gyro rates of ``batch`` with the board's calibration applied (deg/s, (n, 3))."""
+
+    def get_config(self) -> dict:
+        """The board's configuration; ``streaming`` says whether it is sending frames."""
+
+
+def link_baudrate(drv: Instrument) -> str:
+    """The serial bit rate of ``drv``'s link as recorded in the run file ("" when not serial)."""
+    rate = getattr(drv, "baudrate", None)
+    return "" if rate is None else str(rate)
