@@ -26,6 +26,9 @@ DEFAULT_BAUDRATE = {"tvac": 9600}
 """Per-driver default baud rate (bit/s) when the config gives none: Watlow F4 and TPG 261 ship at
 9600 (protocols.md sections 1-2); the others default to 115200."""
 DEFAULT_CAN_CHANNEL = "bench-sim"
+SIM_TRANSPORTS = {"acs_board": ("uart", "can"), "tvac": ("tcp", "rtu")}
+"""Simulated link choices (``sim.transport``) per backend, default first: the chamber controller's
+Modbus runs on TCP (127.0.0.1) or RTU (a serial line: ``sim://`` or a pty, docs/tvac.md)."""
 
 
 @dataclass
@@ -42,12 +45,16 @@ class SimConfig:
     open_channels: list[int] = field(default_factory=list)
     modbus_port: int = 0
     """TCP port of the simulated Modbus server on 127.0.0.1 (0: any free port)."""
+    scpi_port: int = 5025
+    """thermocouple_reader under ``bench sim serve``: TCP port of the SCPI raw socket on 127.0.0.1
+    (5025, the 34972A's LAN port; 0: any free port)."""
     can_channel: str = DEFAULT_CAN_CHANNEL
     """python-can virtual-bus channel the simulated CAN devices sit on."""
     node_id: int = 1
     """CAN node id: the rate table's rotation axis (tilt: node_id + 1), or the board's (default 16)."""
     transport: str = "uart"
-    """acs_board: ``uart`` (serial) or ``can`` (byte stream in CAN frames, docs/acs-board-can.md)."""
+    """acs_board: ``uart`` (serial) or ``can`` (byte stream in CAN frames, docs/acs-board-can.md);
+    tvac: the chamber controller's Modbus, ``tcp`` (default) or ``rtu`` (serial line, docs/tvac.md)."""
     periodic_errors: list[Eccentricity] = field(default_factory=list)
     """Stepper bench / rate table: true-rate errors periodic in the angle (worm eccentricity, microstep ripple)."""
 
@@ -307,15 +314,19 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
     sim.modbus_port = f.get("modbus_port", int, default=0)
     if sim.modbus_port is not None and not 0 <= sim.modbus_port <= 65535:
         errors.append(InputError("expected a TCP port 0..65535 (0: any free port)", f.map["modbus_port"].location, "modbus_port"))
+    sim.scpi_port = f.get("scpi_port", int, default=5025)
+    if sim.scpi_port is not None and not 0 <= sim.scpi_port <= 65535:
+        errors.append(InputError("expected a TCP port 0..65535 (0: any free port)", f.map["scpi_port"].location, "scpi_port"))
     for key, default_harmonic in (("eccentricity", None), ("microstep_ripple", microsteps_per_revolution(sim.speed_calibration))):
         if (n := f.node_at(key)) is not None:
             err = _periodic_error(n, key, default_harmonic, errors)
             if err is not None:
                 sim.periodic_errors.append(err)
     sim.can_channel = f.get("can_channel", str, default=DEFAULT_CAN_CHANNEL)
-    sim.transport = f.get("transport", str, default="uart")
-    if sim.transport not in ("uart", "can"):
-        errors.append(InputError(f"expected transport uart or can, got {sim.transport!r}", f.map["transport"].location, "transport"))
+    transports = SIM_TRANSPORTS.get(backend or "", SIM_TRANSPORTS["acs_board"])
+    sim.transport = f.get("transport", str, default=transports[0])
+    if sim.transport not in transports:
+        errors.append(InputError(f"expected transport {' or '.join(transports)}, got {sim.transport!r}", f.map["transport"].location, "transport"))
     sim.node_id = f.get("node_id", int, default=16 if backend == "acs_board" else 1)
     if sim.node_id is not None and not 1 <= sim.node_id <= 126:
         errors.append(InputError("expected a CANopen node id 1..126 (the tilt axis takes the next one)", f.map["node_id"].location, "node_id"))

@@ -2,7 +2,8 @@
 
 ``--sim`` puts the simulators named in the config behind the very same drivers: serial ones
 through the ``sim://NAME`` pyserial URL handler, the chamber controller through a real Modbus TCP
-server on 127.0.0.1, CAN drives on a python-can virtual bus. The driver code path is identical to
+server on 127.0.0.1 (or on Modbus RTU over ``sim://NAME`` with ``sim.transport: rtu``), CAN drives
+on a python-can virtual bus. The driver code path is identical to
 a hardware run.
 """
 

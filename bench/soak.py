@@ -33,6 +33,7 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.faults import FAULT_CLASSES, FaultSpec
+from bench.record import layout
 
 FAULT_WINDOW_SLACK_S = 10.0
 """Frames missing up to this long (s of run time) after an injected fault on the board's link ended
@@ -232,11 +233,11 @@ def _rows_not_written(path: Path) -> int:
         with h5py.File(path, "r") as f:
             lost = 0
             for key in _stream_keys(f):
-                g = f["streams"][key]
-                if "rows_appended" in g.attrs:
+                g = f[layout.stream_path(key)]
+                if layout.ATTR_ROWS_APPENDED in g.attrs:
                     datasets = [g[n] for n in g if isinstance(g[n], h5py.Dataset)]
                     rows = min(d.shape[0] for d in datasets) if datasets else 0
-                    lost += max(int(g.attrs["rows_appended"]) - rows, 0)
+                    lost += max(int(g.attrs[layout.ATTR_ROWS_APPENDED]) - rows, 0)
             return lost
     except (OSError, KeyError, ValueError):
         return 0
@@ -244,7 +245,7 @@ def _rows_not_written(path: Path) -> int:
 
 def _stream_keys(f: h5py.File) -> list[str]:
     out: list[str] = []
-    f["streams"].visititems(lambda name, obj: out.append(name) if isinstance(obj, h5py.Group) and "time" in obj else None)
+    f[layout.STREAMS].visititems(lambda name, obj: out.append(name) if isinstance(obj, h5py.Group) and layout.TIME in obj else None)
     return out
 
 

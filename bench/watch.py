@@ -30,8 +30,8 @@ from rich.table import Table
 from rich.text import Text
 
 from bench.errors import EXIT_OK, InputError
+from bench.record import layout
 from bench.record.reader import (
-    _EVENT_FIELDS,
     STALE_AFTER_S,
     EventRow,
     _checked_rows,
@@ -42,6 +42,11 @@ from bench.record.reader import (
     _size_limit,
     _stream_groups,
     _unreadable,
+    _units,
+    event_datasets,
+    event_row,
+    read_heartbeat,
+    step_outcome,
 )
 
 TREND_WINDOW_S = 600.0
@@ -58,7 +63,9 @@ WAIT_FOR_FILE_S = 30.0
 """How long (s) :func:`watch` waits for a run file that does not exist, or has not started recording, yet."""
 READ_RETRY_S = 15.0
 """How long (s) :func:`watch` keeps retrying, showing the last good state, when refreshes fail."""
-FINAL_STATUSES = ("completed", "aborted", "failed")
+FINAL_STATUSES = layout.STATUSES_FINAL
+STATUS_STALE = "stale"
+"""Never stored: what watch shows for a ``running`` file whose heartbeat is stale (probably crashed)."""
 HIDDEN_COLUMNS = ("counter", "board_time")
 """Bookkeeping columns of the sensor board; read but not listed as readings (rows and rate are)."""
 SPARK_CHARS = "▁▂▃▄▅▆▇█"
@@ -66,7 +73,9 @@ SPARK_CHARS = "▁▂▃▄▅▆▇█"
 _EVENT_BLOCK = 16384  # events read per block when scanning for steps
 _BLOB_SPAN = 4 * 1024 * 1024  # blob bytes read at once when the wanted messages lie this close together
 _TAIL_ROWS = 64  # rows read at the end of `time` to find the last complete row
-_STEP_KINDS = (b"run_start", b"step_start", b"step_end")
+_STEP_KINDS = tuple(k.encode("ascii") for k in layout.STEP_EVENT_KINDS)
+_RUN_START = layout.EVENT_RUN_START.encode("ascii")
+_STEP_START = layout.EVENT_STEP_START.encode("ascii")
 _WAIT_REASONS = ("recording had not started", "locked by the process writing it", "the file is empty")
 
 
@@ -214,20 +223,18 @@ class StepTracker:
         idx = int(row["step"])
         source = bytes(row["source"]).decode("utf-8", errors="replace")
         t = float(row["t_s"])
-        if kind == b"run_start":
+        if kind == _RUN_START:
             m = re.search(r"(\d+) steps?\b", message)
             if m:
                 self.total = int(m.group(1))
-        elif kind == b"step_start":
+        elif kind == _STEP_START:
             self.steps.pop(idx, None)  # a repeated index replaces the earlier entry, at the end
             self.steps[idx] = StepState(idx, message, source, t)
         else:
             s = self.steps.get(idx)
             if s is None:
                 s = self.steps[idx] = StepState(idx, "", source, None)
-            outcome, _, detail = message.partition(":")
-            s.outcome = outcome.strip() or "done"
-            s.detail = detail.strip()
+            s.outcome, s.detail = step_outcome(message)
             s.t_end_s = t
 
 
@@ -255,14 +262,10 @@ def snapshot(
         now = time.time() if now_unix is None else now_unix
         limit = _size_limit(path)
         attrs = {k: _plain(v) for k, v in f.attrs.items()}
-        if _checked_rows(f["heartbeat"], limit) != 2:
-            raise ValueError("/heartbeat does not hold 2 values")
-        hb = np.asarray(f["heartbeat"][()], dtype=np.float64).reshape(-1)
+        hb = read_heartbeat(f, limit)
         hb_unix, hb_run = float(hb[0]), float(hb[1])
 
-        events_ds, blob_ds = f["events"], f["events_blob"]
-        if not _EVENT_FIELDS <= set(events_ds.dtype.names or ()):
-            raise ValueError("/events does not have the bench event fields")
+        events_ds, blob_ds = event_datasets(f)
         n_events = _checked_rows(events_ds, limit)
         blob_len = _checked_rows(blob_ds, limit)
         tracker.update(events_ds, blob_ds, n_events, blob_len)
@@ -272,37 +275,37 @@ def snapshot(
             _read_stream_tail(key, g, limit, trend_window_s, trend_points) for key, g in _stream_groups(f).items()
         ]
 
-    status = str(attrs.get("status", ""))
+    status = str(attrs.get(layout.ATTR_STATUS, ""))
     age = now - hb_unix if math.isfinite(hb_unix) else None
     detail = ""
-    if status == "running":
+    if status == layout.STATUS_RUNNING:
         if age is None:
-            status, detail = "stale", "no valid heartbeat; the writer has probably crashed"
+            status, detail = STATUS_STALE, "no valid heartbeat; the writer has probably crashed"
         elif age >= stale_after_s:
-            status = "stale"
+            status = STATUS_STALE
             detail = f"no heartbeat for {age:.0f} s (since {_iso(hb_unix)}); the writer has probably crashed"
         else:
             detail = f"heartbeat {max(age, 0.0):.1f} s ago"
     elif status in FINAL_STATUSES:
-        detail = f"ended {attrs.get('ended_utc', '') or '?'}"
+        detail = f"ended {attrs.get(layout.ATTR_ENDED_UTC, '') or '?'}"
     times = [hb_run] + [e.t_s for e in events] + [s.t_last_s for s in streams if s.t_last_s is not None]
     times = [t for t in times if math.isfinite(t)]
     steps = [StepState(**vars(s)) for s in tracker.steps.values()]  # copies: the tracker keeps its own
     running = [s for s in steps if s.outcome == "running"]
     current = running[-1] if running else None
-    if status != "running":  # a step left open by a closed or crashed run did not finish
+    if status != layout.STATUS_RUNNING:  # a step left open by a closed or crashed run did not finish
         for s in running:
             s.outcome = "interrupted"
         current = None
     return WatchState(
         path=path,
-        procedure=str(attrs.get("procedure_name", "")),
+        procedure=str(attrs.get(layout.ATTR_PROCEDURE_NAME, "")),
         status=status,
         status_detail=detail,
-        mode=str(attrs.get("mode", "")),
-        started_utc=str(attrs.get("started_utc", "")),
-        ended_utc=str(attrs.get("ended_utc", "")),
-        abort_reason=str(attrs.get("abort_reason", "")),
+        mode=str(attrs.get(layout.ATTR_MODE, "")),
+        started_utc=str(attrs.get(layout.ATTR_STARTED_UTC, "")),
+        ended_utc=str(attrs.get(layout.ATTR_ENDED_UTC, "")),
+        abort_reason=str(attrs.get(layout.ATTR_ABORT_REASON, "")),
         run_time_s=max(times) if times else 0.0,
         heartbeat_unix=hb_unix if math.isfinite(hb_unix) else None,
         heartbeat_age_s=age,
@@ -345,18 +348,7 @@ def _last_events(events: h5py.Dataset, blob: h5py.Dataset, rows: int, blob_len: 
         np.asarray(blob[off : min(off + n, blob_len)], dtype=np.uint8).tobytes() if n and off < blob_len else b""
         for off, n in data
     ]
-    return [
-        EventRow(
-            t_s=float(r["t_s"]),
-            wall_unix=float(r["wall_unix"]),
-            kind=bytes(r["kind"]).decode("ascii", errors="replace"),
-            source=bytes(r["source"]).decode("utf-8", errors="replace"),
-            step=int(r["step"]),
-            message=m,
-            data=d,
-        )
-        for r, m, d in zip(block, msgs, raw)
-    ]
+    return [event_row(r, m, d) for r, m, d in zip(block, msgs, raw)]
 
 
 def _search_time(ds: h5py.Dataset, t: float, lo: int, hi: int) -> int:
@@ -372,10 +364,10 @@ def _search_time(ds: h5py.Dataset, t: float, lo: int, hi: int) -> int:
 
 def _read_stream_tail(key: str, g: h5py.Group, limit: int, window_s: float, points: int) -> StreamState:
     names = _column_order(g)
-    cols = [n for n in names if n != "time"]
-    units = {n: str(_plain(g[n].attrs.get("units", ""))) for n in cols}
+    cols = [n for n in names if n != layout.TIME]
+    units = {n: _units(g[n]) for n in cols}
     n = min(_checked_rows(g[c], limit) for c in names)
-    tds = g["time"]
+    tds = g[layout.TIME]
     if n > 0:
         start = max(0, n - _TAIL_ROWS)
         tail = np.asarray(tds[start:n], dtype=np.float64)
@@ -479,8 +471,8 @@ def format_run_time(seconds: float) -> str:
 
 
 _STATUS_STYLE = {
-    "running": "bold black on cyan", "completed": "bold black on green", "aborted": "bold white on red",
-    "failed": "bold white on red", "stale": "bold black on yellow",
+    layout.STATUS_RUNNING: "bold black on cyan", layout.STATUS_COMPLETED: "bold black on green",
+    layout.STATUS_ABORTED: "bold white on red", layout.STATUS_FAILED: "bold white on red", STATUS_STALE: "bold black on yellow",
 }
 _OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan"}
 
@@ -493,7 +485,7 @@ def build(state: WatchState) -> RenderableType:
     head.append(f"   run time {format_run_time(state.run_time_s)} ({state.run_time_s:.1f} s)")
     if state.mode:
         head.append(f"   mode {state.mode}", style="dim")
-    detail = Text(state.status_detail, style="red" if state.status == "stale" else "dim")
+    detail = Text(state.status_detail, style="red" if state.status == STATUS_STALE else "dim")
     if state.abort_reason:
         detail.append(f"   abort reason: {state.abort_reason}", style="red")
     parts: list[RenderableType] = [head, detail, _step_line(state)]
@@ -524,7 +516,7 @@ def _step_line(state: WatchState) -> Text:
             t.append(f"  started at {cur.t_start_s:.1f} s, running {max(state.run_time_s - cur.t_start_s, 0.0):.1f} s")
     elif state.steps:
         last = state.steps[-1]
-        t.append("last step  " if state.status != "running" else "between steps; last  ", style="bold")
+        t.append("last step  " if state.status != layout.STATUS_RUNNING else "between steps; last  ", style="bold")
         t.append(f"{last.index + 1}{total} {last.name} ")
         t.append(last.outcome, style=_OUTCOME_STYLE.get(last.outcome, ""))
         if last.detail:
@@ -590,7 +582,7 @@ def _events_table(state: WatchState) -> Table:
     t.add_column("step", justify="right", no_wrap=True)
     t.add_column("message", no_wrap=True, overflow="ellipsis", ratio=1)
     for e in state.events:
-        style = "red" if e.kind in ("error", "fault", "abort") else ("bold" if e.kind in ("step_start", "step_end") else "")
+        style = "red" if e.kind in ("error", "fault", "abort") else ("bold" if e.kind in (layout.EVENT_STEP_START, layout.EVENT_STEP_END) else "")
         t.add_row(f"{e.t_s:.1f}", Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "", Text(e.message))
     return t
 

@@ -1,8 +1,12 @@
 """Driver of the 2-axis rate table: two CiA 402 drives (rotation at node N, tilt at N+1) on one CAN bus.
 
-Speaks CANopen SDO only (no PDO mapping, works in NMT PRE-OPERATIONAL) through the ``canopen``
-package. Objects are named once, in ``drivers/rate_table.eds``, and addressed by their
-``ParameterName`` (:class:`Obj`); the simulator (``bench.sim.rate_table``) reads the same file.
+Speaks CANopen SDO through the ``canopen`` package for every command and read; monitoring uses one
+SYNC and the drives' synchronous TPDOs (CiA 301: PDOs flow only in NMT OPERATIONAL and drives power
+up PRE-OPERATIONAL, so :meth:`RateTable.open` sends NMT "start remote node" to both drives once
+it has read their resolution and limits; a drive that still sends no PDOs, or PDOs of another
+mapping, is read by SDO). Frames:
+docs/golden/cia301-402.md. Objects are named once, in ``drivers/rate_table.eds``, and addressed by
+their ``ParameterName`` (:class:`Obj`); the simulator (``bench.sim.rate_table``) reads the same file.
 Units: degrees and deg/s at the API; counts, counts/s and counts/s^2 on the wire, converted in
 :class:`AxisUnits` only, from the drive's own object 0x608F (position encoder resolution).
 
@@ -72,6 +76,10 @@ class Obj:
 
 SYNC_COB_ID = 0x080
 """CiA 301 SYNC (no data): every drive answers with its transmit PDOs."""
+NMT_COB_ID = 0x000
+"""CiA 301 NMT node control: data [command specifier, node id]."""
+NMT_START_REMOTE_NODE = 0x01
+"""CiA 301 NMT command: go to OPERATIONAL (PDOs are exchanged only there)."""
 TPDO_MAP: dict[int, tuple[int, tuple]] = {
     1: (0x180, (Obj.STATUSWORD, Obj.POSITION_ACTUAL)),
     2: (0x280, (Obj.VELOCITY_ACTUAL,)),
@@ -218,6 +226,8 @@ class RateTable:
             tilt = self.axes["tilt"]
             lo, hi = self._read(tilt, Obj.LIMIT_MIN), self._read(tilt, Obj.LIMIT_MAX)
             tilt.limits_deg = (tilt.units.deg(lo), tilt.units.deg(hi))
+            for ax in self.axes.values():
+                self._start_node(ax)
         except Exception:
             self.close()
             raise
@@ -331,7 +341,8 @@ class RateTable:
 
     def sync_read(self) -> dict[str, dict[str, float]] | None:
         """Send SYNC and decode every axis' transmit PDOs (:data:`TPDO_MAP`): per axis statusword,
-        angle_deg, rate_dps. None when a PDO does not come within the timeout."""
+        angle_deg, rate_dps. None when a PDO does not come within the timeout (``timeout_s``, wall s)
+        or has another length than :data:`TPDO_MAP` gives."""
         with self._lock:
             want = {ax.node.id + base: ax for ax in self.axes.values() for base, _ in TPDO_MAP.values()}
             got: dict[int, bytes] = {}
@@ -361,10 +372,12 @@ class RateTable:
                 for base, keys in TPDO_MAP.values():
                     data = got[ax.node.id + base]
                     self._emit("reply", f"TPDO 0x{ax.node.id + base:03X}", ax.node.id + base, data)
+                    vars_ = [od_var(ax.node.object_dictionary, key) for key in keys]
+                    sizes = [len(var.encode_raw(0)) for var in vars_]
+                    if len(data) != sum(sizes):
+                        return None  # a drive with another mapping: the caller falls back to SDO
                     off = 0
-                    for key in keys:
-                        var = od_var(ax.node.object_dictionary, key)
-                        size = len(var.encode_raw(0))
+                    for key, var, size in zip(keys, vars_, sizes):
                         values[key] = var.decode_raw(data[off:off + size])
                         off += size
                 out[ax.name] = {"statusword": values[Obj.STATUSWORD], "angle_deg": ax.units.deg(values[Obj.POSITION_ACTUAL]),
@@ -421,6 +434,14 @@ class RateTable:
         self._write(ax, Obj.CONTROLWORD, Cw.DISABLE_VOLTAGE)
         self._write(ax, Obj.CONTROLWORD, Cw.FAULT_RESET)
         self._await_state(ax, (SWITCH_ON_DISABLED,))
+
+    def _start_node(self, ax: _Axis) -> None:
+        """NMT "start remote node" (CiA 301 [0x01, node]): synchronous TPDOs flow only in OPERATIONAL."""
+        self._emit("command", f"NMT start node {ax.node.id}", NMT_COB_ID, bytes([NMT_START_REMOTE_NODE, ax.node.id]))
+        try:
+            ax.node.nmt.send_command(NMT_START_REMOTE_NODE)
+        except can.CanError as exc:
+            raise InstrumentError(f"rate_table {ax.name} (node {ax.node.id}): NMT start failed: {exc}") from None
 
     # ---- internals: state machine -----------------------------------------------------------
     def _move(self, ax: _Axis, angle_deg: float, rate_dps: float | None, accel_dps2: float | None) -> None:

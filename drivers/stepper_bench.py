@@ -1,9 +1,12 @@
 """Driver of the stepper rotating bench (Arduino + EasyDriver at 1/8 microstep, ESTCube-2 3.2).
 
-GRBL-style line protocol (docs/stepper-bench.md): each command line is answered by ``ok`` or
-``error:N``; ``?`` and ``!`` are one-byte realtime commands. The firmware takes an integer speed
-parameter n; this driver works in deg/s and converts with the bench's measured calibration
-(:class:`drivers.stepper_speed.BenchSpeedCalibration`, Eq. 3.1: n = k·(1/v − b)).
+GRBL-style line protocol (docs/stepper-bench.md, docs/golden/grbl.md): each command line is
+answered by ``ok`` or ``error:N``; ``?``, ``!``, ``~`` and 0x18 are one-byte realtime commands; a
+pushed ``ALARM:N`` raises :class:`DeviceFault`. Status reports have GRBL 1.1's form
+``<State|MPos:x,y,z|...>`` (the table angle is the X position) plus the firmware's ``N:`` field.
+The firmware takes an integer speed parameter n; this driver works in deg/s and converts with the
+bench's measured calibration (:class:`drivers.stepper_speed.BenchSpeedCalibration`, Eq. 3.1:
+n = k·(1/v − b)).
 """
 
 from __future__ import annotations
@@ -18,7 +21,20 @@ from drivers.transport import LineChannel, open_serial
 
 DEFAULT_BAUDRATE = 115200  # GRBL 1.1 default
 N_MAX = 65535
-_STATUS = re.compile(r"^<(?P<state>[A-Za-z]+)\|N:(?P<n>-?[0-9]{1,9})\|Pos:(?P<pos>-?[0-9]{1,9}(?:\.[0-9]{0,9})?)>$")
+MEANINGS = {  # gnea/grbl doc/markdown/interface.md, "Grbl Response Messages" / "Alarm Message"
+    "error:2": "numeric value format is not valid or missing an expected value",
+    "error:3": "'$' system command was not recognized or supported",
+    "error:9": "locked out during alarm or jog state",
+    "error:11": "max characters per line exceeded, line not executed",
+    "error:22": "feed rate (speed parameter n) has not yet been set",
+    "ALARM:3": "reset while in motion, position may be lost; unlock with $X",
+}
+# interface.md "Real-time Status Reports": state first, position (MPos or WPos, X,Y,Z) second,
+# other fields optional and in any order
+_NUMBER = r"-?[0-9]{1,9}(?:\.[0-9]{1,9})?"
+_STATUS = re.compile(rf"^<(?P<state>[A-Za-z]+)(?::[0-9])?\|[MW]Pos:(?P<pos>{_NUMBER})(?:,{_NUMBER}){{2,3}}"
+                     r"(?P<fields>(?:\|[A-Za-z]+:[^|<>]*)*)>$")
+_N_FIELD = re.compile(r"\|N:(?P<n>-?[0-9]{1,9})(?=\||$)")
 _VERSION = re.compile(r"^\[VER:(?P<firmware>[^:\]]*):(?P<serial>[^\]]*)\]$")
 
 
@@ -32,7 +48,7 @@ class StepperBench:
                  on_traffic=None):
         self.port = port
         self.calibration = calibration or BenchSpeedCalibration()
-        self.channel = LineChannel(port, timeout_s, "stepper_bench", on_traffic)
+        self.channel = LineChannel(port, timeout_s, "stepper_bench", on_traffic, meanings=MEANINGS)
 
     @property
     def on_traffic(self):
@@ -80,13 +96,15 @@ class StepperBench:
         self.channel.transact("$STOP")
 
     def status(self) -> dict:
-        """State (``Idle`` | ``Run``), speed parameter n and angle (deg, 0..360)."""
+        """State (``Idle`` | ``Run`` | ``Hold`` | ``Alarm``, GRBL's sub-state dropped), speed
+        parameter n and angle (deg, 0..360)."""
         lines = self.channel.transact("$S")
         for text in lines:
             m = _STATUS.match(text)
-            if m:
-                return {"state": m["state"], "n": int(m["n"]), "angle_deg": float(m["pos"])}
-        raise ProtocolError(f"stepper_bench: no status report in {lines!r}")
+            n = _N_FIELD.search(m["fields"]) if m else None
+            if n:
+                return {"state": m["state"], "n": int(n["n"]), "angle_deg": float(m["pos"])}
+        raise ProtocolError(f"stepper_bench: no status report with an N: field in {lines!r}")
 
     def monitor_columns(self) -> list[tuple[str, str]]:
         return [("angle", "deg"), ("n", "1")]

@@ -15,7 +15,7 @@ import serial
 from drivers.errors import DeviceFault, ProtocolError
 from drivers.transport import LineChannel, open_serial
 
-OPEN_TC_THRESHOLD = 9.0e37  # the 34970A's overload reading is +9.9E+37
+OPEN_TC_THRESHOLD = 9.0e37  # the 34970A's overload reading is ±9.9E+37 (docs/golden/keysight-34970a.md)
 TC_TYPES = ("K", "T")
 DEFAULT_CHANNELS = (101, 102, 103, 104)  # the first four channels of a 34901A multiplexer
 
@@ -91,7 +91,7 @@ class ThermocoupleReader:
             raise ProtocolError(f"thermocouples: {len(values)} values for {len(self.channels)} channels")
         scan = Scan({})
         for ch, v in zip(self.channels, values):
-            if not math.isfinite(v) or v >= OPEN_TC_THRESHOLD:
+            if not math.isfinite(v) or abs(v) >= OPEN_TC_THRESHOLD:  # overload, either sign: not a temperature
                 scan.temps_c[ch] = None
                 scan.open_channels.append(ch)
             else:

@@ -39,7 +39,8 @@ STATUS = {  # PR1 status digit, p. 71 [V]
     5: "no sensor",
     6: "identification error",
 }
-_PR_RE = re.compile(r"^([0-9]),\s*([+-]?[0-9]\.[0-9]{4}E[+-][0-9]{2})$")
+# p. 71: "x,sx.xxxxEsxx"; the same page prints "5,2.0000E-2" (one exponent digit), so 1-3 are taken
+_PR_RE = re.compile(r"^([0-9]),\s*([+-]?[0-9]\.[0-9]{4}E[+-][0-9]{1,3})$")
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import serial
 
-from drivers.errors import InstrumentError, InstrumentTimeout, ProtocolError
+from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 
 
 def open_serial(url: str, baudrate: int = 115200, timeout_s: float = 0.5) -> serial.SerialBase:
@@ -42,14 +42,17 @@ class LineChannel:
     ``on_traffic(direction, name, raw)`` sees every command line sent and every line received.
     Waiting is bounded both by the port timeout (no bytes at all) and by a byte budget (the
     link's capacity over the timeout), so a chatty device cannot hold a command forever.
+    ``meanings`` maps answer words (``"error:9"``, ``"ALARM:3"``) to the text errors quote.
     """
 
-    def __init__(self, port: serial.SerialBase, timeout_s: float, name: str, on_traffic=None, eol: bytes = b"\n"):
+    def __init__(self, port: serial.SerialBase, timeout_s: float, name: str, on_traffic=None, eol: bytes = b"\n",
+                 meanings: dict[str, str] | None = None):
         self.port = port
         self.timeout_s = timeout_s
         self.name = name
         self.on_traffic = on_traffic
         self.eol = eol
+        self.meanings = dict(meanings or {})
         self._rx = bytearray()
 
     def send_realtime(self, byte: bytes) -> None:
@@ -68,18 +71,30 @@ class LineChannel:
     def transact(self, line: str) -> list[str]:
         """Send ``line``; return the information lines received before ``ok``.
 
-        Raises :class:`ProtocolError` on ``error:N`` and :class:`InstrumentTimeout` without an answer.
+        Raises :class:`ProtocolError` on ``error:N``, :class:`InstrumentTimeout` without an
+        answer, and :class:`DeviceFault` when the device pushed ``ALARM:N`` before its answer
+        (raised once the line's own ``ok``/``error:N`` has been read, so the next command starts
+        in step).
         """
         self._write(line.encode("ascii") + self.eol, line)
         info: list[str] = []
+        alarms: list[str] = []
         budget = self._budget()
         while True:
             text, budget = self._read_line(line, budget)
-            if text == "ok":
-                return info
-            if text.startswith("error:"):
-                raise ProtocolError(f"{self.name} refused {line!r}: {text}")
-            info.append(text)
+            if text == "ok" or text.startswith("error:"):
+                break
+            (alarms if text.startswith("ALARM:") else info).append(text)
+        if alarms:
+            raise DeviceFault(f"{self.name} raised {', '.join(self._described(a) for a in alarms)} "
+                              f"(answer to {line!r}: {self._described(text)})")
+        if text != "ok":
+            raise ProtocolError(f"{self.name} refused {line!r}: {self._described(text)}")
+        return info
+
+    def _described(self, word: str) -> str:
+        meaning = self.meanings.get(word)
+        return f"{word} ({meaning})" if meaning else word
 
     def _budget(self) -> int:
         """Bytes the link can carry within the timeout: the most we read waiting for one answer."""

@@ -71,6 +71,33 @@ def test_equals_allantools_on_messy_tau_list():
     assert_matches_allantools(rate, 100.0, taus)
 
 
+def test_cluster_sizes_given_directly_equal_the_taus_path_and_allantools():
+    """``m=`` (what ``bench diagnose``'s structure plot passes: octaves up to n/8) gives the same
+    deviations as the averaging times m/f_s and as allantools, also where τ·f_s is inexact."""
+    from bench.analysis.diagnose.structure import allan as structure_allan
+
+    rng = np.random.default_rng(3)
+    fs = 1 / 3
+    rate = rng.normal(0.1, 0.02, 5000) + np.cumsum(rng.standard_normal(5000)) * 1e-4
+    m = octave_m(rate.shape[0], 8)
+    ours = overlapping_adev(rate, fs, m=m)
+    np.testing.assert_array_equal(ours.m, m)
+    np.testing.assert_array_equal(ours.adev, overlapping_adev(rate, fs, m / fs).adev)
+    _, d, _, _ = allantools.oadev(rate, rate=fs, data_type="freq", taus=m / fs)
+    np.testing.assert_allclose(ours.adev, d, rtol=REL, atol=0)
+    taus, adev = structure_allan(rate, fs)
+    np.testing.assert_array_equal(taus, ours.taus_s)
+    np.testing.assert_array_equal(adev, ours.adev)
+    assert [a.size for a in structure_allan(rate[:7], fs)] == [0, 0]
+    np.testing.assert_array_equal(overlapping_adev(rate, fs, m=[0, 4, 1, 1, 2, 2500]).m, [1, 2, 4])
+    with pytest.raises(InputError, match="not both"):
+        overlapping_adev(rate, fs, [3.0], m=[1])
+    with pytest.raises(InputError, match="whole numbers"):
+        overlapping_adev(rate, fs, m=[1.5])
+    with pytest.raises(InputError, match="no usable averaging factor"):
+        overlapping_adev(rate, fs, m=[2500])
+
+
 @settings(max_examples=60, deadline=None)
 @given(n=st.integers(3, 4000), fs=st.floats(0.05, 5000.0), scale=st.floats(1e-4, 1e3),
        offset=st.floats(-10.0, 10.0), seed=st.integers(0, 2**32 - 1), walk=st.booleans())

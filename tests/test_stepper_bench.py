@@ -53,8 +53,8 @@ def test_identify_run_status_stop(lab):
 def test_errors_are_typed(lab):
     _, _, urls = lab
     bench = StepperBench.open(urls["stepper_bench"])
-    with pytest.raises(ProtocolError, match="error:9"):
-        bench.run()  # no speed set yet
+    with pytest.raises(ProtocolError, match="error:22"):
+        bench.run()  # no speed set yet: GRBL's "feed rate has not yet been set" (docs/golden/grbl.md)
     with pytest.raises(ProtocolError, match="error:3"):
         bench.channel.transact("$WARP")
     with pytest.raises(ProtocolError, match="error:2"):
@@ -121,12 +121,13 @@ def test_realtime_bytes_act_inside_a_line(lab):
     port = serial.serial_for_url(urls["stepper_bench"], baudrate=115200, timeout=0.1)
     port.write(b"$N=3")
     port.write(b"?")  # realtime status in the middle of a line: answered at once
-    assert port.readline() == b"<Idle|N:0|Pos:0.000>\r\n"
+    assert port.readline() == b"<Idle|MPos:0.000,0.000,0.000|F:0|N:0>\r\n"
     port.write(b"00\n$RUN\n")  # the line continues: $N=300
     assert port.readline() == b"ok\r\n" and port.readline() == b"ok\r\n"
     assert devices["stepper_bench"].running and devices["stepper_bench"].n == 300
-    port.write(b"\x18")
-    assert port.readline().startswith(b"StepperBench sim")
+    port.write(b"\x18")  # reset while turning: GRBL's ALARM:3, then its welcome message
+    assert port.readline() == b"ALARM:3\r\n" and port.readline() == b"\r\n"
+    assert port.readline().startswith(b"Grbl 1.1f ['$' for help]")
     assert not devices["stepper_bench"].running
 
 

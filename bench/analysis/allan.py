@@ -124,6 +124,7 @@ def overlapping_adev(
     fs: float,
     taus: np.ndarray | Sequence[float] | None = None,
     *,
+    m: np.ndarray | Sequence[int] | None = None,
     confidence: float = ONE_SIGMA,
     alpha: int | Sequence[int] | np.ndarray = 0,
 ) -> AllanResult:
@@ -131,11 +132,13 @@ def overlapping_adev(
 
     ``taus`` (s): averaging times, each rounded to m = round(τ·f_s) samples; duplicates are merged
     and τ with m < 1 or fewer than two overlapping terms (m ≥ n/2) are dropped, as allantools does.
-    Default: octave-spaced m = 1, 2, 4, … ≤ n/4. ``confidence``: level of the chi-squared
-    interval (default ±1σ, 0.683); ``alpha``: noise type(s) for the edf (default 0, white FM).
+    ``m`` (samples): the averaging factors (cluster sizes) themselves instead of ``taus``, e.g.
+    :func:`octave_m` with another stop ratio; the same rules apply. Default (neither given):
+    octave-spaced m = 1, 2, 4, … ≤ n/4. ``confidence``: level of the chi-squared interval (default
+    ±1σ, 0.683); ``alpha``: noise type(s) for the edf (default 0, white FM).
 
-    Raises :class:`InputError` for fewer than 3 samples, non-finite values, a bad ``fs``, or when
-    no requested τ can be computed.
+    Raises :class:`InputError` for fewer than 3 samples, non-finite values, a bad ``fs``, both
+    ``taus`` and ``m``, or when no requested τ can be computed.
     """
     y = np.asarray(rate, dtype=np.float64)
     if y.ndim != 1:
@@ -155,7 +158,7 @@ def overlapping_adev(
             raise InputError(f"rate sample {i} is {y[i]!r}: Allan deviation needs finite values")
         total = float(np.sum(y / n)) * n  # finite values whose sum overflows
 
-    m = select_m(n, fs, taus)
+    m = select_m(n, fs, taus, m=m)
     x = _phase_samples(y, total / n)  # Σ(Ω − Ω̄) in units of rate·τ₀ (the 1/f_s factor is applied at the end)
     sums = _second_difference_sums(x, m)
     n_terms = (n + 1 - 2 * m).astype(np.int64)
@@ -166,21 +169,39 @@ def overlapping_adev(
     return AllanResult(m / float(fs), m, adev, n_terms, edf, lo, hi, alpha_arr, float(confidence), n, float(fs))
 
 
-def select_m(n: int, fs: float, taus: np.ndarray | Sequence[float] | None = None) -> np.ndarray:
-    """Averaging factors for ``taus`` (s) as :func:`overlapping_adev` uses them: each rounded to
-    m = round(τ·f_s), duplicates merged, m < 1 and m ≥ n/2 dropped; octaves (:func:`octave_m`) when
-    ``taus`` is ``None``. Raises :class:`InputError` when none is usable."""
+def select_m(n: int, fs: float, taus: np.ndarray | Sequence[float] | None = None, *,
+             m: np.ndarray | Sequence[int] | None = None) -> np.ndarray:
+    """Averaging factors (samples) as :func:`overlapping_adev` uses them: ``taus`` (s) each rounded
+    to m = round(τ·f_s), or the factors ``m`` given directly (whole numbers); duplicates merged,
+    m < 1 and m ≥ n/2 dropped; octaves (:func:`octave_m`) when neither is given. Raises
+    :class:`InputError` when none is usable, or when both are given."""
+    if m is not None:
+        if taus is not None:
+            raise InputError("give averaging times or averaging factors, not both")
+        cand = np.atleast_1d(np.asarray(m, dtype=np.float64))
+        if not np.all(np.isfinite(cand)) or np.any(cand != np.round(cand)):
+            raise InputError("averaging factors must be whole numbers of samples")
+        usable = _usable_m(cand, n)
+        if usable.size == 0:
+            raise InputError(f"no usable averaging factor in {[int(v) for v in cand]} for {n} samples "
+                             f"(m must lie between 1 and {(n - 1) // 2})")
+        return usable
     if taus is None:
         return octave_m(n)
     t = np.atleast_1d(np.asarray(taus, dtype=np.float64))
     if not np.all(np.isfinite(t)):
         raise InputError("averaging times must be finite numbers of seconds")
-    m = np.round(t * float(fs))
-    m = np.unique(m[(m >= 1) & (m < n / 2)]).astype(np.int64)  # n + 1 - 2m >= 2
-    if m.size == 0:
+    usable = _usable_m(np.round(t * float(fs)), n)
+    if usable.size == 0:
         raise InputError(f"no usable averaging time in {list(t)} s for {n} samples at {fs:g} Hz "
                          f"(τ must lie between {1 / fs:g} s and {(n - 1) / 2 / fs:g} s)")
-    return m
+    return usable
+
+
+def _usable_m(m: np.ndarray, n: int) -> np.ndarray:
+    """The distinct whole averaging factors of ``m`` with 1 ≤ m < n/2 (at least two overlapping terms,
+    n + 1 − 2m ≥ 2), ascending."""
+    return np.unique(m[(m >= 1) & (m < n / 2)]).astype(np.int64)
 
 
 def _phase_samples(y: np.ndarray, mean: float | None = None) -> np.ndarray:

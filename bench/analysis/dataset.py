@@ -176,6 +176,7 @@ def dataset_from_run(path: str | Path) -> Dataset:
     frame by the unit's mount, taken from the run's mount prompts; +z up when none),
     ``table_angle_deg``, ``chamber_temp_c`` (chamber air), ``pressure_torr`` (log-interpolated).
     """
+    from bench.record.layout import IMPORTED_STREAM, monitor_key
     from bench.record.reader import read_run_summary, read_stream
     from bench.model.geometry import mount_matrix
 
@@ -183,8 +184,8 @@ def dataset_from_run(path: str | Path) -> Dataset:
     # only the events read below (operator prompts, import notes): a long run logs every command
     summary = read_run_summary(p, event_kinds=("operator", "note"))
     streams = {s.key for s in summary.streams}
-    if "imported" in streams:
-        return _dataset_from_import(p, summary, read_stream(p, "imported"))
+    if IMPORTED_STREAM in streams:
+        return _dataset_from_import(p, summary, read_stream(p, IMPORTED_STREAM))
     if "acs_board" not in streams:
         raise InputError(f"{p}: no ACS board stream in this run (streams: {', '.join(sorted(streams)) or 'none'}); "
                          "the analysis needs the sensor outputs")
@@ -207,10 +208,11 @@ def dataset_from_run(path: str | Path) -> Dataset:
     cols["temp_c"] = _column(p, board, "acs_board", "temp", 1)[keep][:, 0]
     cols["power_on_s"] = t - (t[0] if t.size else 0.0)
 
-    if "rate_table/monitor" in streams and t.size:
-        mon = read_stream(p, "rate_table/monitor", ("rate", "angle"))
-        tm = _column(p, mon, "rate_table/monitor", "time")
-        rate = _interp(t, tm, _column(p, mon, "rate_table/monitor", "rate"))
+    table_monitor, chamber_monitor = monitor_key("rate_table"), monitor_key("tvac")
+    if table_monitor in streams and t.size:
+        mon = read_stream(p, table_monitor, ("rate", "angle"))
+        tm = _column(p, mon, table_monitor, "time")
+        rate = _interp(t, tm, _column(p, mon, table_monitor, "rate"))
         ups = [(e.t_s, m.group(1)) for e in summary.events if (m := _MOUNT_PROMPT.search(e.message))]
         ref = np.zeros((t.size, 3))
         for i, (t0, up) in enumerate(ups or [(-math.inf, "z")]):
@@ -220,13 +222,13 @@ def dataset_from_run(path: str | Path) -> Dataset:
         for k, a in enumerate(AXES):
             cols[REF_RATE[a]] = ref[:, k]
         # unwrapped before interpolating: a sample between 359.9 and 0.1 deg is near 0, not 180
-        angle = np.degrees(np.unwrap(np.radians(_column(p, mon, "rate_table/monitor", "angle"))))
+        angle = np.degrees(np.unwrap(np.radians(_column(p, mon, table_monitor, "angle"))))
         cols["table_angle_deg"] = _interp(t, tm, angle) % 360.0
-    if "tvac/monitor" in streams and t.size:
-        mon = read_stream(p, "tvac/monitor", ("air_temp", "pressure"))
-        tm = _column(p, mon, "tvac/monitor", "time")
-        cols["chamber_temp_c"] = _interp(t, tm, _column(p, mon, "tvac/monitor", "air_temp"))
-        pressure = np.clip(_column(p, mon, "tvac/monitor", "pressure"), 1e-12, None)
+    if chamber_monitor in streams and t.size:
+        mon = read_stream(p, chamber_monitor, ("air_temp", "pressure"))
+        tm = _column(p, mon, chamber_monitor, "time")
+        cols["chamber_temp_c"] = _interp(t, tm, _column(p, mon, chamber_monitor, "air_temp"))
+        pressure = np.clip(_column(p, mon, chamber_monitor, "pressure"), 1e-12, None)
         cols["pressure_torr"] = np.exp(_interp(t, tm, np.log(pressure)))
     meta: dict[str, float | str] = {k: v for k, v in summary.attrs.items() if isinstance(v, str)}
     lat = _latitude_from_config(summary.config_text)

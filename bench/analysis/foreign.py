@@ -42,6 +42,7 @@ import numpy as np
 
 from bench.analysis.dataset import COLUMNS, HDF5_SIGNATURE, Dataset, is_hdf5
 from bench.errors import InputError, InputErrors, Location
+from bench.record.layout import ATTR_FORMAT_VERSION
 
 MAX_ROWS = 20_000_000
 """Most rows (samples) read from a foreign file: 23 days at 10 Hz, 5.5 h at 1 kHz."""
@@ -503,7 +504,7 @@ def is_run_file(path: Path) -> bool | None:
     except InputError:
         return None
     try:
-        return "format_version" in f.attrs
+        return ATTR_FORMAT_VERSION in f.attrs
     except Exception:  # noqa: BLE001 - a damaged file: let the run reader report it
         return None
     finally:
@@ -795,7 +796,7 @@ def dataset_from_foreign(path: str | Path, mapping: ForeignMapping | Sequence[st
                          None, "--map")
     f = _open(p)
     try:
-        if "format_version" in f.attrs:
+        if ATTR_FORMAT_VERSION in f.attrs:
             raise InputError("is a bench run file; it is read without --map", Location(p))
         reads: dict[str, _Read] = {}
         objs: dict[str, Any] = {}

@@ -484,9 +484,10 @@ def _tilt_from_run(ds: Any) -> np.ndarray | None:
     if src.suffix.lower() not in (".h5", ".hdf5") or not src.is_file():
         return None
     try:
+        from bench.record.layout import monitor_key
         from bench.record.reader import read_stream
 
-        mon = read_stream(src, "rate_table/monitor")
+        mon = read_stream(src, monitor_key("rate_table"))
         tm = np.asarray(mon["time"], dtype=float)
         tilt = np.asarray(mon["tilt"], dtype=float)
     except Exception:  # noqa: BLE001 - no monitor or no tilt field: the tilt is simply unknown

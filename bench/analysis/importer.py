@@ -17,8 +17,7 @@ from bench import __version__
 from bench.analysis.dataset import COLUMNS, Dataset, dataset_from_csv
 from bench.analysis.foreign import dataset_from_foreign
 from bench.errors import InputError, Location
-
-IMPORTED_STREAM = "imported"
+from bench.record.layout import IMPORTED_STREAM, MODE_IMPORTED
 UNITS_BY_SUFFIX = {"_s": "s", "_dps": "deg/s", "_deg": "deg", "_c": "degC", "_torr": "Torr", "_g": "g"}
 """Column-name suffix -> units (the measured-data CSV names carry their units)."""
 
@@ -68,7 +67,7 @@ def write_imported_run(ds: Dataset, source: Path, out_path: Path) -> int:
     names = [c for c in COLUMNS if c in ds.columns and c != "time_s"]
     rec = RunRecorder.create(out_path.parent if str(out_path.parent) else Path("."), procedure_name="imported",
                              procedure_text="", procedure_path="", config_text="", config_path="",
-                             mode="imported", software_version=__version__)
+                             mode=MODE_IMPORTED, software_version=__version__)
     key = rec.add_stream(IMPORTED_STREAM, [Column(n, column_units(n)) for n in names])
     rec.start()
     rec.append(key, ds.columns["time_s"], **{n: ds.columns[n] for n in names})

@@ -1,5 +1,7 @@
 """Read run files written by :mod:`bench.record.writer`, also while they are being written.
 
+Every path and attribute name comes from :mod:`bench.record.layout`.
+
 A finished file is opened normally; a file in SWMR write mode (being written, or its writer died)
 as an HDF5 SWMR reader; a file that was never switched to SWMR mode without file locking (which
 HDF5 then refuses: nothing was recorded). Anything that is not a readable bench run file (missing, empty,
@@ -28,7 +30,7 @@ from rich.table import Table
 from rich.text import Text
 
 from bench.errors import InputError
-from bench.record.writer import EVENT_DTYPE, FORMAT_VERSION
+from bench.record import layout
 
 STALE_AFTER_S = 10.0
 """A ``running`` file whose heartbeat is at least this old (s of wall time) reads as ``crashed``."""
@@ -37,7 +39,6 @@ LOCK_WAIT_S = 2.0
 """How long (s) to retry while the writer holds the file lock (setting up, or finalising its status)."""
 
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-_EVENT_FIELDS = set(EVENT_DTYPE.names or ())
 
 
 @dataclass
@@ -134,7 +135,8 @@ def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_un
 
 
 def read_stream(path: Path, stream_key: str, columns: Collection[str] | None = None) -> dict[str, np.ndarray]:
-    """All rows of stream ``stream_key``: ``time`` (run time, s) and every column (only ``time`` and
+    """All rows of stream ``stream_key`` (:func:`bench.record.layout.stream_key`, e.g.
+    :func:`~bench.record.layout.monitor_key`): ``time`` (run time, s) and every column (only ``time`` and
     those of ``columns`` that exist, when given), each cut to the number of rows complete in every
     dataset. Raises :class:`InputError` for an unknown stream."""
     path = Path(path)
@@ -146,7 +148,7 @@ def read_stream(path: Path, stream_key: str, columns: Collection[str] | None = N
         names = _column_order(g)
         limit = _size_limit(path)
         rows = min(_checked_rows(g[n], limit) for n in names)
-        wanted = names if columns is None else [n for n in names if n == "time" or n in columns]
+        wanted = names if columns is None else [n for n in names if n == layout.TIME or n in columns]
         return {n: np.asarray(g[n][:rows]) for n in wanted}
 
 
@@ -324,27 +326,27 @@ def _read_attempts_setter() -> Any:
 
 def _check_format(path: Path, f: h5py.File) -> None:
     try:
-        if "format_version" not in f.attrs:
-            raise _unreadable(path, "no format_version attribute (not written by bench)")
-        version = int(np.asarray(f.attrs["format_version"]).item())
+        if layout.ATTR_FORMAT_VERSION not in f.attrs:
+            raise _unreadable(path, f"no {layout.ATTR_FORMAT_VERSION} attribute (not written by bench)")
+        version = int(np.asarray(f.attrs[layout.ATTR_FORMAT_VERSION]).item())
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001
-        raise _unreadable(path, f"bad format_version attribute ({_describe(exc)})") from None
-    if version > FORMAT_VERSION:
+        raise _unreadable(path, f"bad {layout.ATTR_FORMAT_VERSION} attribute ({_describe(exc)})") from None
+    if version > layout.FORMAT_VERSION:
         raise InputError(
-            f"{path}: run file format_version {version} is newer than this bench reads (up to {FORMAT_VERSION}); "
-            "upgrade bench to read it"
+            f"{path}: run file {layout.ATTR_FORMAT_VERSION} {version} is newer than this bench reads "
+            f"(up to {layout.FORMAT_VERSION}); upgrade bench to read it"
         )
     if version < 1:
-        raise _unreadable(path, f"invalid format_version {version}")
-    for name in ("procedure/text", "config/text", "instruments", "streams", "events", "events_blob", "heartbeat"):
+        raise _unreadable(path, f"invalid {layout.ATTR_FORMAT_VERSION} {version}")
+    for name in layout.REQUIRED:
         try:
             present = name in f
         except Exception as exc:  # noqa: BLE001
-            raise _unreadable(path, f"/{name}: {_describe(exc)}") from None
+            raise _unreadable(path, f"{layout.absolute(name)}: {_describe(exc)}") from None
         if not present:
-            raise _unreadable(path, f"/{name} is missing")
+            raise _unreadable(path, f"{layout.absolute(name)} is missing")
 
 
 def _unreadable(path: Path, reason: str) -> InputError:
@@ -394,22 +396,20 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
                event_kinds: Collection[str] | None = None) -> RunSummary:
     limit = _size_limit(path)
     attrs = {k: _plain(v) for k, v in f.attrs.items()}
-    if _checked_rows(f["heartbeat"], limit) != 2:
-        raise ValueError("/heartbeat does not hold 2 values")
-    hb = np.asarray(f["heartbeat"][()], dtype=np.float64).reshape(-1)
+    hb = read_heartbeat(f, limit)
     hb_unix = float(hb[0]) if hb.size >= 1 else None
     hb_run = float(hb[1]) if hb.size >= 2 else None
-    status = str(attrs.get("status", ""))
+    status = str(attrs.get(layout.ATTR_STATUS, ""))
     detail = ""
-    if status == "running":
+    if status == layout.STATUS_RUNNING:
         if hb_unix is None or not np.isfinite(hb_unix):
-            status, detail = "crashed", "no valid heartbeat"
+            status, detail = layout.STATUS_CRASHED, "no valid heartbeat"
         else:
             age = now_unix - hb_unix
             since = _iso(hb_unix)
             at = f", run time {hb_run:.1f} s" if hb_run is not None and np.isfinite(hb_run) else ""
             if age >= stale_after_s:
-                status, detail = "crashed", f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
+                status, detail = layout.STATUS_CRASHED, f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
             else:
                 detail = f"being written: last heartbeat {since} ({age:.1f} s ago{at})"
     events = _read_events(f, limit, event_kinds)
@@ -420,13 +420,13 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
         path=path,
         attrs=attrs,
         status=status,
-        procedure_text=_read_text(f["procedure/text"], limit),
-        config_text=_read_text(f["config/text"], limit),
-        instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in f["instruments"].items()},
+        procedure_text=_read_text(f[layout.PROCEDURE_TEXT], limit),
+        config_text=_read_text(f[layout.CONFIG_TEXT], limit),
+        instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in f[layout.INSTRUMENTS].items()},
         streams=[_stream_summary(key, g, limit) for key, g in _stream_groups(f).items()],
-        steps=_steps(events, live=status == "running"),
+        steps=_steps(events, live=status == layout.STATUS_RUNNING),
         events=events,
-        abort_reason=str(attrs.get("abort_reason", "")),
+        abort_reason=str(attrs.get(layout.ATTR_ABORT_REASON, "")),
         status_detail=detail,
         heartbeat_unix=hb_unix,
         heartbeat_run_time_s=hb_run,
@@ -449,72 +449,99 @@ def _read_text(ds: h5py.Dataset, limit: int) -> str:
         raise ValueError(f"{ds.name} is not a plausible text dataset (corrupted)")
     raw = ds[()]
     raw = bytes(raw) if isinstance(raw, (bytes, np.bytes_)) else np.asarray(raw, dtype=np.uint8).tobytes()
-    n = ds.attrs.get("length_bytes")
+    n = ds.attrs.get(layout.ATTR_LENGTH_BYTES)
     if n is not None:
         n = min(int(np.asarray(n).item()), limit)
         raw = raw.ljust(n, b"\0")[:n]  # numpy drops trailing NULs of fixed-length strings
-    return raw.decode("utf-8", errors="surrogateescape")
+    return raw.decode(layout.TEXT_ENCODING, errors="surrogateescape")
 
 
 def _stream_groups(f: h5py.File) -> dict[str, h5py.Group]:
+    """Stream key -> group: the groups under ``/streams`` (one or two levels down) that hold a
+    ``time`` dataset."""
     out: dict[str, h5py.Group] = {}
-    for inst, g in f["streams"].items():
+    for inst, g in f[layout.STREAMS].items():
         if not isinstance(g, h5py.Group):
             continue
-        if isinstance(g.get("time"), h5py.Dataset):
-            out[inst] = g
+        if isinstance(g.get(layout.TIME), h5py.Dataset):
+            out[layout.stream_key(inst)] = g
             continue
         for sub, sg in g.items():
-            if isinstance(sg, h5py.Group) and isinstance(sg.get("time"), h5py.Dataset):
-                out[f"{inst}/{sub}"] = sg
+            if isinstance(sg, h5py.Group) and isinstance(sg.get(layout.TIME), h5py.Dataset):
+                out[layout.stream_key(inst, sub)] = sg
     return out
 
 
 def _column_order(g: h5py.Group) -> list[str]:
-    declared = g.attrs.get("columns")
-    names = [n for n in str(_plain(declared)).split(",") if n] if declared is not None else []
+    """The datasets of stream group ``g``: ``time``, then the declared columns in their order,
+    then any others by name."""
+    declared = g.attrs.get(layout.ATTR_COLUMNS)
+    names = [n for n in str(_plain(declared)).split(layout.COLUMN_SEPARATOR) if n] if declared is not None else []
     present = [n for n in g if isinstance(g[n], h5py.Dataset)]
     names = [n for n in names if n in present] + sorted(n for n in present if n not in names)
-    return ["time"] + [n for n in names if n != "time"]
+    return [layout.TIME] + [n for n in names if n != layout.TIME]
+
+
+def _units(ds: h5py.Dataset) -> str:
+    """The ``units`` attribute of a column, ``""`` when absent."""
+    return str(_plain(ds.attrs.get(layout.ATTR_UNITS, "")))
 
 
 def _stream_summary(key: str, g: h5py.Group, limit: int) -> StreamSummary:
     names = _column_order(g)
     rows = min(_checked_rows(g[n], limit) for n in names)
-    columns = {n: str(_plain(g[n].attrs.get("units", ""))) for n in names if n != "time"}
-    shapes = {n: tuple(int(s) for s in g[n].shape[1:]) for n in names if n != "time"}
+    columns = {n: _units(g[n]) for n in names if n != layout.TIME}
+    shapes = {n: tuple(int(s) for s in g[n].shape[1:]) for n in names if n != layout.TIME}
     t0 = t1 = rate = None
     if rows:
-        t0 = float(g["time"][0])
-        t1 = float(g["time"][rows - 1])
+        t0 = float(g[layout.TIME][0])
+        t1 = float(g[layout.TIME][rows - 1])
         if rows > 1 and t1 > t0:
             rate = (rows - 1) / (t1 - t0)
     return StreamSummary(key, columns, shapes, rows, t0, t1, rate)
 
 
+def read_heartbeat(f: h5py.File, limit: int) -> np.ndarray:
+    """The heartbeat values (:data:`layout.HEARTBEAT_FIELDS`: wall time s since epoch, run time s)
+    after checking the dataset holds exactly those."""
+    ds = f[layout.HEARTBEAT]
+    if _checked_rows(ds, limit) != len(layout.HEARTBEAT_FIELDS):
+        raise ValueError(f"{layout.absolute(layout.HEARTBEAT)} does not hold {len(layout.HEARTBEAT_FIELDS)} values")
+    return np.asarray(ds[()], dtype=np.float64).reshape(-1)
+
+
+def event_datasets(f: h5py.File) -> tuple[h5py.Dataset, h5py.Dataset]:
+    """``(/events, /events_blob)`` after checking the table has the bench event fields."""
+    ds = f[layout.EVENTS]
+    if not set(layout.EVENT_FIELDS) <= set(ds.dtype.names or ()):
+        raise ValueError(f"{layout.absolute(layout.EVENTS)} does not have the bench event fields")
+    return ds, f[layout.EVENTS_BLOB]
+
+
+def event_row(r: np.void, message: str, data: bytes) -> EventRow:
+    """One row of ``/events`` (:data:`layout.EVENT_DTYPE`), decoded, with its message and data."""
+    return EventRow(
+        t_s=float(r["t_s"]),
+        wall_unix=float(r["wall_unix"]),
+        kind=bytes(r["kind"]).decode("ascii", errors="replace"),
+        source=bytes(r["source"]).decode("utf-8", errors="replace"),
+        step=int(r["step"]),
+        message=message,
+        data=data,
+    )
+
+
 def _read_events(f: h5py.File, limit: int, kinds: Collection[str] | None = None) -> list[EventRow]:
-    ds = f["events"]
-    if not _EVENT_FIELDS <= set(ds.dtype.names or ()):
-        raise ValueError("/events does not have the bench event fields")
+    ds, blob_ds = event_datasets(f)
     rows = ds[: _checked_rows(ds, limit)]
     if kinds is not None:
         rows = rows[np.isin(rows["kind"], np.array([k.encode("ascii") for k in kinds], dtype=rows.dtype["kind"]))]
-    blob_ds = f["events_blob"]
     blob = np.asarray(blob_ds[: _checked_rows(blob_ds, limit)], dtype=np.uint8).tobytes()
-    out = []
-    for r in rows:
-        out.append(
-            EventRow(
-                t_s=float(r["t_s"]),
-                wall_unix=float(r["wall_unix"]),
-                kind=bytes(r["kind"]).decode("ascii", errors="replace"),
-                source=bytes(r["source"]).decode("utf-8", errors="replace"),
-                step=int(r["step"]),
-                message=_slice(blob, int(r["msg_off"]), int(r["msg_len"])).decode("utf-8", errors="replace"),
-                data=_slice(blob, int(r["data_off"]), int(r["data_len"])),
-            )
-        )
-    return out
+    return [
+        event_row(r, _slice(blob, int(r["msg_off"]), int(r["msg_len"])).decode("utf-8", errors="replace"),
+                  _slice(blob, int(r["data_off"]), int(r["data_len"])))
+        for r in rows
+    ]
 
 
 def _slice(blob: bytes, off: int, n: int) -> bytes:
@@ -528,22 +555,27 @@ def _steps(events: list[EventRow], live: bool) -> list[StepSummary]:
     steps: list[StepSummary] = []
     open_steps: dict[int, StepSummary] = {}
     for e in events:
-        if e.kind == "step_start":
+        if e.kind == layout.EVENT_STEP_START:
             s = StepSummary(e.step, e.message, "", e.t_s, None, e.source)
             steps.append(s)
             open_steps[e.step] = s
-        elif e.kind == "step_end":
+        elif e.kind == layout.EVENT_STEP_END:
             s = open_steps.pop(e.step, None)
             if s is None:
                 s = StepSummary(e.step, "", "", None, None, e.source)
                 steps.append(s)
-            outcome, _, detail = e.message.partition(":")
-            s.outcome = outcome.strip() or "done"
-            s.detail = detail.strip()
+            s.outcome, s.detail = step_outcome(e.message)
             s.t_end_s = e.t_s
     for s in open_steps.values():
         s.outcome = "running" if live else "interrupted"
     return steps
+
+
+def step_outcome(message: str) -> tuple[str, str]:
+    """``(outcome, detail)`` of a ``step_end`` message ``outcome`` or ``outcome: detail``; an empty
+    outcome reads ``done``."""
+    outcome, _, detail = message.partition(":")
+    return outcome.strip() or "done", detail.strip()
 
 
 def _iso(unix: float) -> str:
@@ -554,7 +586,8 @@ def _iso(unix: float) -> str:
 
 
 # ---- rendering ----------------------------------------------------------------------------------
-_STATUS_STYLE = {"completed": "bold green", "running": "bold cyan", "crashed": "bold red", "aborted": "bold red", "failed": "bold red"}
+_STATUS_STYLE = {layout.STATUS_COMPLETED: "bold green", layout.STATUS_RUNNING: "bold cyan", layout.STATUS_CRASHED: "bold red",
+                 layout.STATUS_ABORTED: "bold red", layout.STATUS_FAILED: "bold red"}
 _OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan"}
 
 
@@ -567,18 +600,18 @@ def render_summary(summary: RunSummary, console: Console, max_events: int = 40) 
     head.add_column()
     status = Text(summary.status, style=_STATUS_STYLE.get(summary.status, "bold"))
     if summary.status_detail:
-        status.append(f"  {summary.status_detail}", style="dim" if summary.status == "running" else "red")
+        status.append(f"  {summary.status_detail}", style="dim" if summary.status == layout.STATUS_RUNNING else "red")
     rows: list[tuple[str, Text | str]] = [
-        ("procedure", f"{a.get('procedure_name', '')} ({a.get('procedure_path', '')})"),
+        ("procedure", f"{a.get(layout.ATTR_PROCEDURE_NAME, '')} ({a.get(layout.ATTR_PROCEDURE_PATH, '')})"),
         ("file", str(summary.path)),
         ("status", status),
-        ("started", str(a.get("started_utc", ""))),
-        ("ended", str(a.get("ended_utc", "")) or "-"),
-        ("mode", str(a.get("mode", ""))),
-        ("operator", str(a.get("operator", ""))),
-        ("host", str(a.get("host", ""))),
-        ("software", f"bench {a.get('software_version', '')}, run-file format {a.get('format_version', '')}"),
-        ("config", str(a.get("config_path", ""))),
+        ("started", str(a.get(layout.ATTR_STARTED_UTC, ""))),
+        ("ended", str(a.get(layout.ATTR_ENDED_UTC, "")) or "-"),
+        ("mode", str(a.get(layout.ATTR_MODE, ""))),
+        ("operator", str(a.get(layout.ATTR_OPERATOR, ""))),
+        ("host", str(a.get(layout.ATTR_HOST, ""))),
+        ("software", f"bench {a.get(layout.ATTR_SOFTWARE_VERSION, '')}, run-file format {a.get(layout.ATTR_FORMAT_VERSION, '')}"),
+        ("config", str(a.get(layout.ATTR_CONFIG_PATH, ""))),
     ]
     if summary.abort_reason:
         rows.append(("abort reason", Text(summary.abort_reason, style="red")))

@@ -11,7 +11,8 @@ backend hands requests to a simulator instead.
   protocols, the board's binary frames); :class:`AcsBoardReplay` adds the data stream re-encoded
   from the recorded ``acs_board`` rows at the run times they were sent.
 * :class:`ModbusReplayServer` - Modbus TCP on 127.0.0.1 (any free port) answering recorded ADUs
-  with the request's transaction id.
+  with the request's transaction id; :class:`ModbusRtuReplay` - the same controller on Modbus
+  RTU, a ``sim://`` serial far end (``modbus-rtu://sim://...``).
 * :class:`CanReplayNode` - a python-can virtual-bus participant answering SDO requests and SYNC
   with the recorded frames.
 """
@@ -28,6 +29,7 @@ import can
 import numpy as np
 
 from bench.replay.recording import Exchange
+from bench.sim.watlow_f4_rtu import crc16_modbus
 from drivers import acs_protocol as proto
 
 Exhausted = Callable[[str], None]
@@ -199,6 +201,24 @@ class AcsBoardReplay(ReplaySerial):
         if self._later:
             times.append(self._later[0][0])
         return min(times) if times else None
+
+
+class ModbusRtuReplay(ReplaySerial):
+    """Modbus RTU far end of the chamber controller: one write of the driver is one request frame,
+    answered at once with the recorded reply frames (pymodbus's serial client polls the port on the
+    wall clock, so a reply held back in virtual time would never arrive); a request recorded
+    without reply stays unanswered (a recorded timeout). Out of recorded exchanges: exception 4
+    (device failure), as :class:`ModbusReplayServer`."""
+
+    clock_delays = False
+
+    def receive(self, data: bytes) -> None:
+        exhausted = self.live and self.pos >= len(self.exchanges)
+        super().receive(data)
+        if exhausted and len(data) >= 2:
+            adu = bytes((data[0], (data[1] | 0x80) & 0xFF, 4))
+            with self._lock:
+                self._out += adu + crc16_modbus(adu)
 
 
 # ---- Modbus TCP ---------------------------------------------------------------------------------

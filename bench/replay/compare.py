@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.record import layout
 from bench.record.reader import RunSummary
 
 TIME_TOL_S = 1e-6
@@ -156,28 +157,29 @@ def compare_streams(src_path, rep_path, src: RunSummary, rep: RunSummary, prefix
     keys_b = {s.key: s for s in rep.streams}
     for s in src.streams:
         r = keys_b.get(s.key)
+        instrument = layout.split_stream_key(s.key)[0]
         if r is None:
-            out.append(Divergence(s.t_start_s or 0.0, f"stream {s.key}", -1, "", s.key.split("/")[0], f"{s.rows} rows", "(no such stream)"))
+            out.append(Divergence(s.t_start_s or 0.0, f"stream {s.key}", -1, "", instrument, f"{s.rows} rows", "(no such stream)"))
             continue
         rows = s.rows
         if prefix_only and not timed:
             rows = min(s.rows, r.rows)  # a wall-clock source cut by a crash: where the cut falls is not reproducible
         elif (s.rows != r.rows and not prefix_only) or r.rows < s.rows:
-            out.append(Divergence(s.t_end_s or 0.0, f"stream {s.key}", -1, "", s.key.split("/")[0], f"{s.rows} rows", f"{r.rows} rows"))
+            out.append(Divergence(s.t_end_s or 0.0, f"stream {s.key}", -1, "", instrument, f"{s.rows} rows", f"{r.rows} rows"))
             continue
         with h5py.File(src_path, "r", swmr=True, locking=False) as fa, h5py.File(rep_path, "r", locking=False) as fb:
-            ga, gb = fa["streams"][s.key], fb["streams"][s.key]
+            ga, gb = fa[layout.stream_path(s.key)], fb[layout.stream_path(s.key)]
             block = 1 << 18
             for name in ga:
-                if name == "time" and not timed:
+                if name == layout.TIME and not timed:
                     continue
                 for i in range(0, rows, block):
                     xa = np.asarray(ga[name][i:min(i + block, rows)], dtype=float)
                     xb = np.asarray(gb[name][i:min(i + block, rows)], dtype=float)
                     if not np.allclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True):
                         bad = np.nonzero(~np.isclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True).reshape(len(xa), -1).all(axis=1))[0][0]
-                        t = float(ga["time"][i + bad])
-                        out.append(Divergence(t, f"stream {s.key} column {name} row {i + bad}", -1, "", s.key.split("/")[0],
+                        t = float(ga[layout.TIME][i + bad])
+                        out.append(Divergence(t, f"stream {s.key} column {name} row {i + bad}", -1, "", instrument,
                                               repr(ga[name][i + bad]), repr(gb[name][i + bad])))
                         break
                 else:

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from bench.clock import VirtualClock
-from bench.config import LabConfig
+from bench.config import InstrumentConfig, LabConfig
 from bench.errors import InputError
 from bench.lab import DRIVER_CLASSES, Lab, driver_kwargs
-from bench.replay.backends import AcsBoardReplay, Backend, CanReplayNode, ModbusReplayServer, ReplaySerial
+from bench.replay.backends import AcsBoardReplay, Backend, CanReplayNode, ModbusReplayServer, ModbusRtuReplay, ReplaySerial
 from bench.replay.recording import Recording
 from bench.sim import registry
 from bench.sim.factory import SimInstrument, build_devices
@@ -60,6 +60,14 @@ class ReplayLab:
         return {k: b.extra_requests for k, b in self.backends.items() if b.extra_requests}
 
 
+def controller_on_rtu(inst: InstrumentConfig, mode: str) -> bool:
+    """Whether the chamber controller of a recording in ``mode`` (``sim`` | ``hardware``) talked
+    Modbus RTU: the simulator's ``transport: rtu`` in a dry-run, a ``modbus-rtu://`` port on hardware."""
+    if mode == "sim":
+        return inst.sim is not None and inst.sim.transport == "rtu"
+    return inst.port.startswith("modbus-rtu:")
+
+
 def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: str,
                     on_traffic: Callable[[str, str, str, bytes], None] | None, on_exhausted: Callable[[str], None]) -> ReplayLab:
     for name in names:
@@ -99,6 +107,9 @@ def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: s
                 ports[name] = serial(name, "", "", AcsBoardReplay, stream=rec.stream(name))
             elif inst.driver in ("stepper_bench", "thermocouple_reader"):
                 ports[name] = serial(name, "", "")
+            elif inst.driver == "tvac" and controller_on_rtu(inst, mode):
+                ports[name] = "modbus-rtu://" + serial(name, "controller", "", ModbusRtuReplay)
+                kwargs[name]["gauge_url"] = serial(name, "gauge", "gauge")
             elif inst.driver == "tvac":
                 addr = None
                 if name in prelude:

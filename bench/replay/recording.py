@@ -20,9 +20,8 @@ import numpy as np
 import yaml
 
 from bench.errors import InputError
-from bench.record import read_run_summary, read_stream
+from bench.record import layout, read_run_summary, read_stream
 from bench.record.reader import EventRow, RunSummary
-from bench.record.writer import FORMAT_VERSION
 
 MODBUS_RE = re.compile(r"^(read|write) \d+")
 """Event names of the chamber's Modbus controller; every other ``tvac`` event is its serial gauge."""
@@ -98,7 +97,7 @@ def load_recording(path: Path) -> Recording:
     proc = [e for e in summary.events if e.kind == "procedure"]
     if not proc:
         raise InputError(f"{path}: cannot be replayed: it was recorded by an older bench "
-                         f"({summary.attrs.get('software_version', '?')}) without {REPLAY_NEEDS}; record it again")
+                         f"({summary.attrs.get(layout.ATTR_SOFTWARE_VERSION, '?')}) without {REPLAY_NEEDS}; record it again")
     try:
         info = json.loads(proc[0].data.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -113,10 +112,10 @@ def load_recording(path: Path) -> Recording:
                 continue
     end = max((e.t_s for e in summary.events), default=0.0)
     return Recording(
-        path=path, summary=summary, sha256=file_sha256(path), mode=str(summary.attrs.get("mode", "")), status=summary.status,
+        path=path, summary=summary, sha256=file_sha256(path), mode=str(summary.attrs.get(layout.ATTR_MODE, "")), status=summary.status,
         parameters=dict(info.get("parameters") or {}), sources=dict(info.get("sources") or {}), answers=answers,
         prelude_recorded=any(e.kind == "lab_open" for e in summary.events), end_t_s=end,
-        clock=str(info.get("clock") or ("wall" if summary.attrs.get("mode") == "hardware" else "virtual")),
+        clock=str(info.get("clock") or ("wall" if summary.attrs.get(layout.ATTR_MODE) == layout.MODE_HARDWARE else "virtual")),
     )
 
 
@@ -125,11 +124,11 @@ def _check_version(path: Path) -> None:
         raise InputError(f"{path}: no such run file")
     try:
         with h5py.File(path, "r", locking=False) as f:
-            version = f.attrs.get("format_version")
+            version = f.attrs.get(layout.ATTR_FORMAT_VERSION)
     except OSError:
         try:  # a crashed SWMR file
             with h5py.File(path, "r", swmr=True, locking=False) as f:
-                version = f.attrs.get("format_version")
+                version = f.attrs.get(layout.ATTR_FORMAT_VERSION)
         except Exception:  # noqa: BLE001 - the reader gives the precise reason below
             return
     except Exception:  # noqa: BLE001
@@ -137,8 +136,8 @@ def _check_version(path: Path) -> None:
     if version is None:
         return  # read_run_summary says "not written by bench"
     v = int(np.asarray(version).item())
-    if v < FORMAT_VERSION:
-        raise InputError(f"{path}: run file format_version {v} is older than bench replay reads ({FORMAT_VERSION}); "
+    if v < layout.FORMAT_VERSION:
+        raise InputError(f"{path}: run file {layout.ATTR_FORMAT_VERSION} {v} is older than bench replay reads ({layout.FORMAT_VERSION}); "
                          f"replay it with the bench version that recorded it, or record it again")
 
 
@@ -156,7 +155,7 @@ def materialise_config(rec: Recording, workdir: Path) -> Path:
     holds the same text, else a copy in ``workdir`` with the relative files it names (sensor
     models) linked from the original config's directory."""
     text = rec.summary.config_text
-    orig = Path(str(rec.summary.attrs.get("config_path", "")))
+    orig = Path(str(rec.summary.attrs.get(layout.ATTR_CONFIG_PATH, "")))
     if orig.is_file() and orig.read_text(encoding="utf-8") == text:
         return orig
     out = workdir / (orig.name or "config.yaml")

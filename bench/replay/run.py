@@ -11,7 +11,7 @@ from bench import __version__
 from bench.config import load_config
 from bench.procedure import load_procedure
 from bench.procedure.loader import parse_procedure
-from bench.record import RunRecorder, read_run_summary
+from bench.record import RunRecorder, layout, read_run_summary
 from bench.replay.compare import Divergence, compare, compare_streams
 from bench.replay.recording import load_recording, materialise_config, new_workdir, param_overrides
 from bench.runner import Runner
@@ -83,7 +83,7 @@ def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = 
     with new_workdir() as wd:
         config = load_config(materialise_config(rec, Path(wd)))
     kinds, limits = config.kinds(), config.limits()
-    stored_path = str(src.attrs.get("procedure_path", "procedure.yaml"))
+    stored_path = str(src.attrs.get(layout.ATTR_PROCEDURE_PATH, "procedure.yaml"))
     defaults = parse_procedure(src.procedure_text, stored_path, {}, kinds, limits).parameters
     if procedure_path is None:
         procedure = parse_procedure(src.procedure_text, stored_path, param_overrides(rec, defaults), kinds, limits)
@@ -98,15 +98,15 @@ def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = 
         if procedure.sources.get(p, t) != t:
             notes.append(f"note: called procedure {p} differs from the text recorded in the run file")
     drivers = {n: config.instruments[n].driver for n in procedure.instruments if n in config.instruments}
-    mode = rec.mode if rec.mode in ("sim", "hardware") else "sim"
+    mode = rec.mode if rec.mode in (layout.MODE_SIM, layout.MODE_HARDWARE) else layout.MODE_SIM
 
     from bench.replay.lab import open_replay_lab
 
     recorder = RunRecorder.create(runs_dir, procedure_name=procedure.name, procedure_text=text, procedure_path=ppath,
-                                  config_text=config.text, config_path=str(src.attrs.get("config_path", "")), mode="replay",
+                                  config_text=config.text, config_path=str(src.attrs.get(layout.ATTR_CONFIG_PATH, "")), mode=layout.MODE_REPLAY,
                                   software_version=__version__, flush_interval_s=config.flush_interval_s)
     recorder.event("replay", "replay", f"replay of {rec.path}", t_s=0.0, data=json.dumps({
-        "source": str(rec.path.resolve()), "sha256": rec.sha256, "source_started_utc": src.attrs.get("started_utc", ""),
+        "source": str(rec.path.resolve()), "sha256": rec.sha256, "source_started_utc": src.attrs.get(layout.ATTR_STARTED_UTC, ""),
         "source_mode": rec.mode, "source_status": rec.status, "procedure": ppath}).encode())
     runner: Runner | None = None
     lab_box: list = []
@@ -128,7 +128,7 @@ def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = 
     try:
         rl = open_replay_lab(config, procedure.instruments, rec, mode, traffic, exhausted)
     except BaseException as exc:
-        recorder.close("aborted", f"instruments could not be opened: {exc}")
+        recorder.close(layout.STATUS_ABORTED, f"instruments could not be opened: {exc}")
         raise
     lab_box.append(rl)
     if rec.prelude_recorded:
@@ -142,20 +142,20 @@ def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = 
             result = runner.run()
             run_time, status, reason = result.run_time_s, result.status, result.abort_reason
         except Exception as exc:  # noqa: BLE001 - a replay reports how the re-executed run broke, it does not crash
-            run_time, status = rl.lab.clock.now(), "failed"
+            run_time, status = rl.lab.clock.now(), layout.STATUS_FAILED
             reason = f"the replayed run crashed: {type(exc).__name__}: {exc}"
             notes.append(f"note: {reason}")
             if not recorder.closed:
                 try:
                     recorder.event("run_end", "runner", f"failed: {reason}", t_s=run_time)
-                    recorder.close("failed", reason)
+                    recorder.close(layout.STATUS_FAILED, reason)
                 except Exception:  # noqa: BLE001
                     pass
     finally:
         rl.close()
     wall = time.monotonic() - wall0
     rep = read_run_summary(recorder.path)
-    crashed = rec.status in ("crashed", "running")
+    crashed = rec.status in (layout.STATUS_CRASHED, layout.STATUS_RUNNING)
     if crashed:
         notes.append(f"note: the source has no end (status {rec.status}); compared up to its last event at {rec.end_t_s:.1f} s")
     divs = compare(src, rep, drivers, timed=rec.clock == "virtual", prefix_only=crashed, skip_prelude=False)

@@ -36,6 +36,7 @@ import numpy as np
 from bench import __version__
 from bench.analysis.result import CalibrationResult
 from bench.errors import InputError
+from bench.record import layout
 from bench.record.reader import RunSummary, read_run_summary, read_stream
 from bench.report import figures as F
 from bench.report.html import Cell, esc, figure_png, fmt, page, table
@@ -48,6 +49,9 @@ ANALYSES: dict[str, tuple[str, str]] = {
 """Report key → (module with ``calibrate(ds) -> CalibrationResult``, what it is called in notes)."""
 
 BOARD = "acs_board"
+CHAMBER_MONITOR = layout.monitor_key("tvac")
+THERMOCOUPLE_MONITOR = layout.monitor_key("thermocouples")
+TABLE_MONITOR = layout.monitor_key("rate_table")
 AXES = ("x", "y", "z")
 BOARD_TEMP_LABELS = ("board temp: gyro die", "board temp: accel die", "board temp: board")
 """Labels of the ACS board's three temperature channels (docs/run-file.md)."""
@@ -98,7 +102,7 @@ def build_report(run_path: str | Path) -> str:
         ("10. Calibration tables", section_tables(results)),
         ("11. Pass/fail checks", section_checks(summary)),
     ]
-    name = str(summary.attrs.get("procedure_name", "")) or path.stem
+    name = str(summary.attrs.get(layout.ATTR_PROCEDURE_NAME, "")) or path.stem
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     return page(f"Run report: {name}", sections, subtitle=f"{path.name}; report generated {generated} by bench {__version__}")
 
@@ -158,15 +162,15 @@ def load_run_data(path: Path, summary: RunSummary) -> RunData:
     def series(label: str, t: np.ndarray, y: np.ndarray) -> F.Series:
         return F.Series(label, *F.envelope(*F.break_gaps(t, y)))
 
-    if "tvac/monitor" in streams and streams["tvac/monitor"].rows:
-        mon = read_stream(path, "tvac/monitor")
+    if CHAMBER_MONITOR in streams and streams[CHAMBER_MONITOR].rows:
+        mon = read_stream(path, CHAMBER_MONITOR)
         for col, label in (("air_temp", "chamber air"), ("mount_temp", "chamber mount")):
             if col in mon:
                 data.temperatures.append(series(label, mon["time"], mon[col]))
         if "pressure" in mon:
             data.pressure = series("chamber pressure", mon["time"], mon["pressure"])
-    if "thermocouples/monitor" in streams and streams["thermocouples/monitor"].rows:
-        mon = read_stream(path, "thermocouples/monitor")
+    if THERMOCOUPLE_MONITOR in streams and streams[THERMOCOUPLE_MONITOR].rows:
+        mon = read_stream(path, THERMOCOUPLE_MONITOR)
         for col in (c for c in mon if c != "time"):
             data.temperatures.append(series(f"thermocouple {col}", mon["time"], mon[col]))
     if BOARD in streams and streams[BOARD].rows:
@@ -187,8 +191,8 @@ def load_run_data(path: Path, summary: RunSummary) -> RunData:
         del board
     else:
         data.windows = _windows(summary, np.zeros(0), None)
-    if "rate_table/monitor" in streams and streams["rate_table/monitor"].rows:
-        mon = read_stream(path, "rate_table/monitor")
+    if TABLE_MONITOR in streams and streams[TABLE_MONITOR].rows:
+        mon = read_stream(path, TABLE_MONITOR)
         if "rate" in mon:
             data.reference.append(series("rate table rate", mon["time"], mon["rate"]))
     for key in streams:
@@ -301,29 +305,30 @@ def section_summary(summary: RunSummary) -> str:
     status = summary.status.upper()
     title = _procedure_title(summary.procedure_text)
     rows: list[list[Any]] = [
-        ["procedure", f"{a.get('procedure_name', '')}" + (f": {title}" if title else "")],
-        ["procedure file", str(a.get("procedure_path", ""))],
+        ["procedure", f"{a.get(layout.ATTR_PROCEDURE_NAME, '')}" + (f": {title}" if title else "")],
+        ["procedure file", str(a.get(layout.ATTR_PROCEDURE_PATH, ""))],
         ["status", Cell(status + (f": {summary.status_detail}" if summary.status_detail else ""), _OUTCOME_CLASS.get(summary.status, "warn"))],
     ]
     if summary.abort_reason:
         rows.append(["abort reason", Cell(summary.abort_reason, "fail")])
     for w in summary.warnings:
         rows.append(["warning", Cell(w, "warn")])
-    mode = str(a.get("mode", ""))
+    mode = str(a.get(layout.ATTR_MODE, ""))
     rows += [
-        ["mode", {"sim": "sim (dry-run, simulated instruments)", "hardware": "hardware", "replay": "replay"}.get(mode, mode)],
-        ["operator", str(a.get("operator", ""))],
-        ["host", str(a.get("host", ""))],
-        ["software", f"bench {a.get('software_version', '')} (run-file format {a.get('format_version', '')})"],
-        ["lab config", str(a.get("config_path", ""))],
-        ["started (UTC)", str(a.get("started_utc", ""))],
-        ["ended (UTC)", str(a.get("ended_utc", "")) or "-"],
+        ["mode", {layout.MODE_SIM: "sim (dry-run, simulated instruments)", layout.MODE_HARDWARE: "hardware",
+                  layout.MODE_REPLAY: "replay"}.get(mode, mode)],
+        ["operator", str(a.get(layout.ATTR_OPERATOR, ""))],
+        ["host", str(a.get(layout.ATTR_HOST, ""))],
+        ["software", f"bench {a.get(layout.ATTR_SOFTWARE_VERSION, '')} (run-file format {a.get(layout.ATTR_FORMAT_VERSION, '')})"],
+        ["lab config", str(a.get(layout.ATTR_CONFIG_PATH, ""))],
+        ["started (UTC)", str(a.get(layout.ATTR_STARTED_UTC, ""))],
+        ["ended (UTC)", str(a.get(layout.ATTR_ENDED_UTC, "")) or "-"],
     ]
     run_time = _run_time_s(summary)
-    t0, t1 = _utc(str(a.get("started_utc", ""))), _utc(str(a.get("ended_utc", "")))
+    t0, t1 = _utc(str(a.get(layout.ATTR_STARTED_UTC, ""))), _utc(str(a.get(layout.ATTR_ENDED_UTC, "")))
     wall = (t1 - t0).total_seconds() if t0 and t1 else None
     clock = info.get("clock")
-    if clock == "virtual" or mode == "sim":
+    if clock == "virtual" or mode == layout.MODE_SIM:
         duration = f"{hms(run_time)} run time (virtual clock); {hms(wall)} wall-clock"
     else:
         duration = hms(run_time if run_time is not None else wall)

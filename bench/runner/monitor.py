@@ -17,7 +17,7 @@ import numpy as np
 
 from bench.errors import KNOWN_ERRORS, BenchError, DeviceFault, InstrumentError
 from bench.procedure.signals import parse_signal
-from bench.record import Column
+from bench.record import Column, layout
 from bench.runner.instruments import Polled
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -60,7 +60,7 @@ class LabMonitor:
         """Declare ``/streams/NAME/monitor`` with the driver's columns; first reading due at 0 s."""
         interval = self.interval(name)
         cols = [Column(c, u, "f8") for c, u in drv.monitor_columns()]
-        self.keys[name] = self.run.rec.add_stream(name, cols, "monitor", rate_hz=1.0 / interval)
+        self.keys[name] = self.run.rec.add_stream(name, cols, layout.MONITOR_STREAM, rate_hz=1.0 / interval)
         self.due[name] = 0.0
 
     def interval(self, name: str) -> float:

@@ -32,7 +32,7 @@ class SimInstrument:
     ``serial``: sub-name -> serial link (a :class:`FaultySerialLink` around the device: fault
     hooks on the bytes); ``""`` is the instrument's own link, others are auxiliary links
     (``gauge`` of the chamber, ``slcan`` adapter of a CAN bus). ``url``: the
-    driver's URL when its own link is not serial. ``url_kwargs``: driver keyword -> sub-name of
+    driver's URL when its own link is not serial, or wraps it (``modbus-rtu://sim://NAME``). ``url_kwargs``: driver keyword -> sub-name of
     the serial device whose URL it takes. ``endpoints``: (transport, address) lines for people.
     ``device``: the simulator object with the fault hooks.
     """
@@ -120,16 +120,31 @@ def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World,
 
     dev = ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate,
                                 spec=KEYSIGHT_34970A, installed_types=inst.tc_type, seed=inst.sim.seed)
-    return _serial_only(name, dev, inst.sim.seed)
+    out = _serial_only(name, dev, inst.sim.seed)
+    if fixed_ports:
+        # other processes (PyVISA, a terminal) also reach it as a 34972A on its LAN SCPI socket
+        from bench.sim.scpi_socket import ScpiSocketServer
+
+        server = ScpiSocketServer(dev)
+        port = server.start(LOCALHOST, inst.sim.scpi_port)
+        out.closers.append(server.stop)
+        out.endpoints.append(("tcp", f"{LOCALHOST}:{port} (SCPI raw socket, VISA TCPIP::{LOCALHOST}::{port}::SOCKET)"))
+    return out
 
 
 def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
     from bench.sim.tpg261 import Tpg261Sim
     from bench.sim.watlow_f4_server import WatlowF4Server
 
+    gauge = Tpg261Sim(clock, world.chamber, baudrate=inst.gauge_baudrate)
+    if inst.sim.transport == "rtu":  # the controller on its own serial link: sim://NAME, or a pty when served
+        from bench.sim.watlow_f4_rtu import WatlowF4RtuSim
+
+        rtu = WatlowF4RtuSim(clock, world.chamber, baudrate=inst.baudrate)
+        return SimInstrument(name, rtu, serial={"": FaultySerialLink(rtu, inst.sim.seed), "gauge": FaultySerialLink(gauge, inst.sim.seed)},
+                             url=f"modbus-rtu://{serial_url(name, '')}", url_kwargs={"gauge_url": "gauge"})
     server = WatlowF4Server(clock, world.chamber)
     port = server.start(LOCALHOST, inst.sim.modbus_port if fixed_ports else 0)
-    gauge = Tpg261Sim(clock, world.chamber, baudrate=inst.gauge_baudrate)
     url = f"modbus-tcp://{LOCALHOST}:{port}"
     return SimInstrument(name, server, serial={"gauge": FaultySerialLink(gauge, inst.sim.seed)}, url=url, url_kwargs={"gauge_url": "gauge"},
                          endpoints=[("modbus-tcp", f"{LOCALHOST}:{port} (unit id 1)")], closers=[server.stop])

@@ -10,6 +10,12 @@ evaluated at ``clock.now()``, so with a VirtualClock the table only moves when t
 No heartbeat is produced unless the host writes 0x1017 (canopen then runs it in wall time; its
 content does not depend on run time).
 
+NMT (CiA 301): each drive sends its boot-up message (0x700 + id, ``00``) when attached and is then
+PRE-OPERATIONAL (heartbeat ``7F``); NMT start/stop/enter pre-operational are obeyed, reset node and
+reset communication repeat the boot-up (the drive's CiA 402 state is kept: a simplification).
+Synchronous TPDOs are sent only in OPERATIONAL; in STOPPED the drives answer neither SDOs nor send
+EMCY (docs/golden/cia301-402.md).
+
 Fault hooks (``inject(fault, **params)``, ``clear_faults()``; docs/rate-table.md):
 
 * ``sdo_abort``: ``code`` (default 0x08000020, "data cannot be transferred"), ``index`` (only that
@@ -47,6 +53,7 @@ from drivers.rate_table import (
     SWITCH_ON_DISABLED,
     SWITCHED_ON,
     TPDO_MAP,
+    NMT_COB_ID,
     Cw,
     Obj,
     Sw,
@@ -63,6 +70,9 @@ ERROR_REGISTER_GENERIC = 0x01  # CiA 301 0x1001 bit 0
 ERROR_REGISTER_CURRENT = 0x02  # CiA 301 0x1001 bit 1
 DEFAULT_TILT_LIMITS_DEG = (-120.0, 120.0)  # [U] assumed TRT-7 tilt range; NPSAT1 used -36.4 and 52.6 deg
 AXES = ("rotation", "tilt")
+NMT_ENTER_PRE_OPERATIONAL = 0x80  # CiA 301 NMT command specifiers
+NMT_RESET_NODE = 0x81
+NMT_RESET_COMMUNICATION = 0x82
 
 
 class AxisDrive:
@@ -337,7 +347,8 @@ class AxisDrive:
             self.state = FAULT
             self.fault_code = code
             self.error_register = ERROR_REGISTER_GENERIC | (ERROR_REGISTER_CURRENT if code & 0xF000 == 0x2000 else 0)
-        self.node.emcy.send(code, self.error_register)
+        if self.node.nmt.state != "STOPPED":  # CiA 301: a STOPPED node sends no EMCY
+            self.node.emcy.send(code, self.error_register)
 
     def set_stuck(self, stuck: bool) -> None:
         with self._lock:
@@ -370,6 +381,7 @@ class RateTableSim:
         self.network: canopen.Network | None = None
         self._own_bus = False
         self._silent: set[str] = set()
+        self._sdo_off: set[str] = set()  # drives whose SDO server is unsubscribed (silent or NMT STOPPED)
         if bus is not None:
             self.attach(bus)
 
@@ -394,15 +406,49 @@ class RateTableSim:
             net.add_node(drive.node)
         net.connect()
         net.subscribe(SYNC_COB_ID, self._on_sync)
+        net.subscribe(NMT_COB_ID, self._on_nmt)  # after the LocalNodes' own NMT handlers
         self.network = net
+        for drive in self.drives.values():
+            self._boot(drive)
+            self._update_sdo(drive)
+
+    @staticmethod
+    def _boot(drive: AxisDrive) -> None:
+        """CiA 301 power-on / reset: boot-up message (0x700 + id, ``00``), then PRE-OPERATIONAL."""
+        drive.node.nmt.send_command(NMT_RESET_COMMUNICATION)  # canopen sends the boot-up message
+        drive.node.nmt.send_command(NMT_ENTER_PRE_OPERATIONAL)
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """NMT node control [command, node] (0 = all nodes), after canopen has set the NMT state."""
+        if len(data) < 2:
+            return
+        command, node = data[0], data[1]
+        for drive in self.drives.values():
+            if node not in (0, drive.node.id):
+                continue
+            if command in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+                self._boot(drive)
+            self._update_sdo(drive)
+
+    def _update_sdo(self, drive: AxisDrive) -> None:
+        """Subscribe the drive's SDO server unless it is silent (fault hook) or NMT STOPPED."""
+        if self.network is None:
+            return
+        want = drive.axis not in self._silent and drive.node.nmt.state != "STOPPED"
+        if want and drive.axis in self._sdo_off:
+            self.network.subscribe(drive.node.sdo.rx_cobid, drive.node.sdo.on_request)
+            self._sdo_off.discard(drive.axis)
+        elif not want and drive.axis not in self._sdo_off:
+            self.network.unsubscribe(drive.node.sdo.rx_cobid, drive.node.sdo.on_request)
+            self._sdo_off.add(drive.axis)
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        """SYNC: every drive that answers sends its synchronous transmit PDOs (TPDO_MAP)."""
+        """SYNC: every OPERATIONAL drive that answers sends its synchronous transmit PDOs (TPDO_MAP)."""
         net = self.network
         if net is None:
             return
         for drive in self.drives.values():
-            if drive.axis in self._silent:
+            if drive.axis in self._silent or drive.node.nmt.state != "OPERATIONAL":
                 continue
             for base, keys in TPDO_MAP.values():
                 payload = b"".join(od_var(drive.od, key).encode_raw(drive.pdo_value(key)) for key in keys)
@@ -439,9 +485,8 @@ class RateTableSim:
                 d.aborts = dict(spec)
         elif fault == "silent":
             for d in self._axes(axis):
-                if d.axis not in self._silent and self.network is not None:
-                    self.network.unsubscribe(d.node.sdo.rx_cobid, d.node.sdo.on_request)
                 self._silent.add(d.axis)
+                self._update_sdo(d)
         elif fault == "error_frames":
             count = int(params.pop("count", 10))
             if self.network is None:
@@ -469,9 +514,8 @@ class RateTableSim:
             d.aborts = None
             d.set_stuck(False)
             d.warning = False
-            if d.axis in self._silent and self.network is not None:
-                self.network.subscribe(d.node.sdo.rx_cobid, d.node.sdo.on_request)
-        self._silent.clear()
+            self._silent.discard(d.axis)
+            self._update_sdo(d)
 
     def describe(self) -> dict[str, str]:
         """States of both drives, for logs and tests."""

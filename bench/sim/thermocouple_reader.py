@@ -3,10 +3,12 @@
 Subset served (``docs/thermocouples.md``; the command forms follow the 34970A User's Guide as
 collected in ``../shared/protocols.md`` section 3a): ``*IDN?``, ``*RST``, ``*CLS``,
 ``CONF:TEMP TC,<K|T>,(@list)``, ``UNIT:TEMP C,(@list)``, ``SENS:TEMP:TRAN:TC:RJUN:TYPE INT,(@list)``,
-``SENS:TEMP:TRAN:TC:CHEC ON|OFF,(@list)``, ``ROUT:SCAN (@list)``, ``READ?``,
-``SENS:TEMP:TRAN:TC:RJUN? (@ch)`` (internal reference-junction temperature, °C [U]),
-``SYST:ERR?``. Errors go to the SCPI error queue (-113 undefined header, -222 data out of range,
--224 illegal parameter value), as on the instrument.
+``SENS:TEMP:TRAN:TC:CHEC ON|OFF,(@list)``, ``ROUT:SCAN (@list)``, ``READ?``, ``INIT`` +
+``FETC?``, ``SENS:TEMP:TRAN:TC:RJUN? (@ch)`` (internal reference-junction temperature, °C [U]),
+``SYST:ERR?``. Errors go to the SCPI error queue (-113 undefined header, -221 settings conflict,
+-222 data out of range, -224 illegal parameter value, -230 ``FETC?`` without readings [U]), as on
+the instrument. Answers end with CR LF on RS-232 (as a 34970A's do) and with LF on the 34972A's
+LAN socket (:meth:`~bench.sim.line_device.LineDeviceSim.exchange`, ``bench.sim.scpi_socket``).
 
 Measurement chain (``docs/thermocouples.md``, "Simulated physics"): per scan and channel the
 true junction temperature (the mount by default, or the chamber air / sensor die per ``points``),
@@ -196,6 +198,7 @@ class ThermocoupleReaderSim(LineDeviceSim):
         self.check: set[int] = set()
         self.scan: list[int] = []
         self.errors: list[str] = []
+        self.memory: list[float] | None = None  # readings of the last INIT
 
     # ---- SCPI -------------------------------------------------------------------------------
     def _error(self, code: int, text: str) -> None:
@@ -203,7 +206,8 @@ class ThermocoupleReaderSim(LineDeviceSim):
             self.errors.append(f'{code:+d},"{text}"')
 
     def _answer(self, text: str) -> None:
-        self.reply(text, b"\n")
+        """One answer line: ends with CR LF on RS-232, LF on the LAN socket (:attr:`eol`)."""
+        self.reply(text)
 
     def on_line(self, line: str) -> None:
         for command in line.split(";"):
@@ -275,7 +279,18 @@ class ThermocoupleReaderSim(LineDeviceSim):
                 self._error(-221, "Settings conflict")
                 self._answer("")
                 return
-            self._answer(",".join(f"{v:+.8E}" for v in self.read_values()))
+            self._answer(_readings(self.read_values()))
+        elif header_matches("INITiate", header):
+            if not self.scan:
+                self._error(-221, "Settings conflict")
+                return
+            self.memory = self.read_values()  # one scan into reading memory
+        elif header_matches("FETCh?", header):
+            if self.memory is None:
+                self._error(-230, "Data corrupt or stale")  # SCPI code for "no valid data" [U]
+                self._answer("")
+                return
+            self._answer(_readings(self.memory))
         else:
             self._error(-113, "Undefined header")
 
@@ -283,6 +298,12 @@ class ThermocoupleReaderSim(LineDeviceSim):
         """One scan: °C per channel in scan order (overload value for open, checked channels)."""
         now = self.clock.now()
         return [self._reading(c, now) for c in self.scan]
+
+
+def _readings(values: list[float]) -> str:
+    """Readings as the 34970A sends them: ``±d.ddddddddE±dd`` comma-separated in scan order
+    (protocols.md 3a, 34970A/34972A UG p. 104)."""
+    return ",".join(f"{v:+.8E}" for v in values)
 
 
 def _split_args(args: str) -> list[str]:

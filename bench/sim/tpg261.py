@@ -4,15 +4,18 @@ Protocol (``../shared/protocols.md`` section 2, manual BG 5195 BEN/A pp. 65-75 [
 sends ``MNE[,params]<CR>[<LF>]``; the unit answers ``<ACK><CR><LF>`` (or ``<NAK><CR><LF>`` for
 an unknown mnemonic or a bad parameter); the host then sends ``<ENQ>`` and gets
 ``data<CR><LF>``. ENQ again re-runs the last request (a fresh reading). ``<ETX>`` clears the
-input buffer; spaces are ignored. At power-up the unit streams a ``PR1`` reading every 1 s
-until it receives its first character (``power_up_stream``).
+input buffer; spaces are ignored. At power-up the unit streams a reading every 1 s
+until it receives its first character (``power_up_stream``, p. 65).
 
 Served: ``PR1``/``PR2``/``PRX`` (``s,x.xxxxE±xx`` in the current unit), ``UNI[,x]`` (0 mbar,
 1 Torr, 2 Pa; default Torr), ``TID`` (``PKR,noSEn``), ``PNR``, ``ERR`` (``0000``; ``0001``
 after a syntax error, ``0010`` after a bad parameter [U, VGC401 form]), ``RES`` (``0``).
-ENQ with no valid request answers the ``ERR`` word [U]. Pressure is the chamber's
+ENQ with no valid request answers the ``ERR`` word (p. 67). Pressure is the chamber's
 ``pressure_torr`` at the time of the ENQ; a PKR covers about 1e-9 mbar to atmosphere
 (status 1 underrange below :data:`UNDERRANGE_MBAR`, 2 overrange above :data:`OVERRANGE_MBAR` [U]).
+Values are always exponential; for logarithmic gauges (PKR, TPR, IKR, PBR, IMR) the 3rd and 4th
+decimals are always 0 (p. 71-72). The power-up stream sends both channels, like ``COM``
+(``x,sx.xxxxEsxx,y,sy.yyyyEsyy``, p. 72); channel 2 has no sensor.
 
 Fault hooks (``inject(fault, **params)``, ``clear_faults()``):
 
@@ -36,8 +39,16 @@ GARBAGE = b"\xff\xfe#\x80?\r\n"
 FAULTS = ("sensor_error", "garbage", "stall", "stuck")
 
 
-def format_pressure(status: int, value: float) -> str:
-    """``s,x.xxxxE±xx`` as sent by the TPG (always exponential, p. 71 [V])."""
+LOGARITHMIC_GAUGES = frozenset({"TPR", "IKR9", "IKR11", "PKR", "PBR", "IMR"})  # CMR is linear
+NO_SENSOR = "5,2.0000E-02"  # p. 71: "No sensor (output: 5,2.0000E-2 [mbar])", exponent as sxx
+
+
+def format_pressure(status: int, value: float, logarithmic: bool = False) -> str:
+    """``s,x.xxxxE±xx`` as sent by the TPG: always exponential; a logarithmic gauge's 3rd and 4th
+    decimals are 0 (p. 71 [V]). The positive mantissa is sent without a sign [U]."""
+    if logarithmic:
+        mantissa, _, exponent = f"{value:.2E}".partition("E")
+        return f"{status},{mantissa}00E{exponent}"
     return f"{status},{value:.4E}"
 
 
@@ -89,7 +100,7 @@ class Tpg261Sim(LineDeviceSim):
             return format_pressure(self.faults["sensor_error"]["status"], 0.0)
         mbar = torr * TORR_TO[0]
         status = 1 if mbar < UNDERRANGE_MBAR else 2 if mbar > OVERRANGE_MBAR else 0
-        return format_pressure(status, torr * TORR_TO[self.units])
+        return format_pressure(status, torr * TORR_TO[self.units], self.gauge_id in LOGARITHMIC_GAUGES)
 
     def receive(self, data: bytes) -> None:
         if data:
@@ -143,9 +154,9 @@ class Tpg261Sim(LineDeviceSim):
         if mnemonic == "PR1":
             return self.reading()
         if mnemonic == "PR2":
-            return format_pressure(5, 2.0e-2)  # no sensor on channel 2 (p. 71 example)
+            return NO_SENSOR
         if mnemonic == "PRX":
-            return f"{self.reading()},{format_pressure(5, 2.0e-2)}"
+            return f"{self.reading()},{NO_SENSOR}"
         if mnemonic == "UNI":
             return str(self.units)
         if mnemonic == "TID":
@@ -160,7 +171,7 @@ class Tpg261Sim(LineDeviceSim):
     # ---- power-up continuous mode -----------------------------------------------------------
     def _stream_until(self, t_s: float) -> None:
         while self.streaming and self._next_stream_s <= t_s:
-            self.reply(self.reading())
+            self.reply(self._data("PRX"))  # both channels, as COM sends them (p. 72)
             self._next_stream_s += STREAM_PERIOD_S
 
     def take_output(self, t_s: float, max_bytes: int | None = None) -> bytes:

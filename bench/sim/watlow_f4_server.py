@@ -1,12 +1,15 @@
-"""Simulated Watlow F4 controller: a real pymodbus Modbus/TCP server in front of a :class:`Chamber`.
+"""Simulated Watlow F4 controller: :class:`WatlowF4Sim` (registers and fault hooks over a
+:class:`Chamber`) and :class:`WatlowF4Server`, a real pymodbus Modbus/TCP server in front of it.
+Modbus RTU on a serial line: :mod:`bench.sim.watlow_f4_rtu` (same registers, same faults).
 
 Register map: :data:`drivers.watlow_f4.REGISTERS` (no numbers are repeated here). Addresses are
 raw PDU addresses: our own device context maps them straight onto the chamber, avoiding
 ``ModbusDeviceContext``'s +1 address shift (``../shared/style-models.md`` section 6). Unit id 1;
 another unit id gets no answer, as on an RTU line. FC 3 (read holding registers), 6 (write
 single) and 16 (write multiple) are served; any other function -> exception 1, an unmapped
-address -> exception 2, a bad value (set point outside the limits, event not 0/1, write to a
-read-only register) -> exception 3 (protocols.md section 1 [V]).
+address or a write to a read-only register -> exception 2, a bad value (set point outside the
+limits, event not 0/1) -> exception 3 (protocols.md section 1 [V]; read-only writes: Watlow
+Controls Communications Guide p. 15, see ``docs/golden/watlow-f4.md``).
 
 Usage from synchronous code::
 
@@ -25,7 +28,8 @@ Fault hooks (``inject(fault, **params)``, ``clear_faults()``; several may be act
 * ``open_sensor``, ``input=1|2`` (default 1): the PV register reads -32768 [U], the input error
   register 65 ("open", D4T enum) and the alarm status has the input error bit.
 * ``disconnect``: open connections are closed and new ones refused (the listening socket is
-  closed) until ``clear_faults()``, which listens again on the same port.
+  closed) until ``clear_faults()``, which listens again on the same port. (On RTU: the line
+  goes silent, as with a pulled RS-232/485 cable.)
 """
 
 from __future__ import annotations
@@ -55,63 +59,42 @@ _READ_FCS = (3,)
 class F4DeviceContext(ModbusBaseDeviceContext):
     """Holding registers at raw PDU addresses, read from and written to the simulated F4."""
 
-    def __init__(self, sim: "WatlowF4Server"):
+    def __init__(self, sim: "WatlowF4Sim"):
         self.sim = sim
 
     def reset(self) -> None:
         """Nothing to reset: the state lives in the chamber."""
 
     def getValues(self, func_code: int, address: int, count: int = 1):
-        if self.sim.faults.get("exception"):
-            return ExcCodes(self.sim.faults["exception"]["code"])
-        if func_code not in _READ_FCS + _WRITE_FCS:
-            return ExcCodes.ILLEGAL_FUNCTION
-        regs = [BY_ADDRESS.get(a) for a in range(address, address + count)]
-        if any(r is None for r in regs):
-            return ExcCodes.ILLEGAL_ADDRESS
-        return [self.sim.read_raw(r) for r in regs]
+        return self.sim.read_registers(func_code, address, count)
 
     def setValues(self, func_code: int, address: int, values):
-        if self.sim.faults.get("exception"):
-            return ExcCodes(self.sim.faults["exception"]["code"])
-        if func_code not in _WRITE_FCS:
-            return ExcCodes.ILLEGAL_FUNCTION
-        regs = [BY_ADDRESS.get(a) for a in range(address, address + len(values))]
-        if any(r is None for r in regs):
-            return ExcCodes.ILLEGAL_ADDRESS
-        for reg, raw in zip(regs, values):
-            if reg.access != "RW" or not self.sim.write_raw(reg, int(raw)):
-                return ExcCodes.ILLEGAL_VALUE
-        return None
+        return self.sim.write_registers(func_code, address, values)
 
 
 class F4ServerContext(ModbusServerContext):
     """One device at unit id 1; another unit id, or the ``timeout`` fault, gets no answer."""
 
-    def __init__(self, sim: "WatlowF4Server"):
+    def __init__(self, sim: "WatlowF4Sim"):
         super().__init__(devices={UNIT_ID: F4DeviceContext(sim)}, single=False)
         self.sim = sim
 
     def __getitem__(self, device_id):
-        if "timeout" in self.sim.faults:
+        if not self.sim.answering:
             raise NoSuchIdException("timeout fault: no answer")
         return super().__getitem__(device_id)
 
 
-class WatlowF4Server:
-    """A Watlow F4 on Modbus/TCP, in a daemon thread with its own event loop."""
+class WatlowF4Sim:
+    """The simulated F4 without a transport: its registers over a :class:`Chamber` and its fault
+    hooks. :class:`WatlowF4Server` puts it on Modbus/TCP, :class:`bench.sim.watlow_f4_rtu.WatlowF4RtuSim`
+    on a serial line (Modbus RTU)."""
 
     def __init__(self, clock, chamber, *, alarm_band_c: float = DEFAULT_ALARM_BAND_C):
         self.clock = clock
         self.chamber = chamber
         self.alarm_band_c = alarm_band_c
         self.faults: dict[str, dict] = {}
-        self.host = "127.0.0.1"
-        self.port = 0
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._thread: threading.Thread | None = None
-        self._server: ModbusTcpServer | None = None
-        self._context = F4ServerContext(self)
         self._values: dict[str, tuple[Callable[[], float], Callable[[float], None] | None]] = {
             "pv_input_1": (self._pv1, None),
             "pv_input_2": (self._pv2, None),
@@ -136,6 +119,46 @@ class WatlowF4Server:
         missing = set(BY_NAME) ^ set(self._values)
         if missing:
             raise RuntimeError(f"register map and simulator disagree on {sorted(missing)}")
+
+    @property
+    def answering(self) -> bool:
+        """False while the ``timeout`` fault holds: requests are taken in but never answered."""
+        return "timeout" not in self.faults
+
+    # ---- requests (function code, PDU address, values) -> registers or exception -------------
+    def refusal(self, func_code: int, served: tuple[int, ...] = _READ_FCS + _WRITE_FCS) -> ExcCodes | None:
+        """The exception that refuses ``func_code`` before any address is looked at: the
+        ``exception`` fault's code, 1 (illegal function) for a function not in ``served``, else None."""
+        if self.faults.get("exception"):
+            return ExcCodes(self.faults["exception"]["code"])
+        if func_code not in served:
+            return ExcCodes.ILLEGAL_FUNCTION
+        return None
+
+    def read_registers(self, func_code: int, address: int, count: int = 1) -> list[int] | ExcCodes:
+        """Raw values (0..65535) of ``count`` registers from PDU ``address``, or the exception:
+        2 (illegal data address) if any of them is not in the register map."""
+        if (exc := self.refusal(func_code)) is not None:
+            return exc
+        regs = [BY_ADDRESS.get(a) for a in range(address, address + count)]
+        if any(r is None for r in regs):
+            return ExcCodes.ILLEGAL_ADDRESS
+        return [self.read_raw(r) for r in regs]
+
+    def write_registers(self, func_code: int, address: int, values) -> ExcCodes | None:
+        """Write raw ``values`` from PDU ``address`` (FC 6 or 16); None on success, else the
+        exception: 2 (illegal data address) for an address not in the map or a read-only register
+        (Watlow Controls Communications Guide p. 15: "An attempt to write to a read-only parameter
+        returns an illegal data address error (0x02)"), 3 (illegal data value) for a refused value."""
+        if (exc := self.refusal(func_code, _WRITE_FCS)) is not None:
+            return exc
+        regs = [BY_ADDRESS.get(a) for a in range(address, address + len(values))]
+        if any(r is None or r.access != "RW" for r in regs):
+            return ExcCodes.ILLEGAL_ADDRESS
+        for reg, raw in zip(regs, values):
+            if not self.write_raw(reg, int(raw)):
+                return ExcCodes.ILLEGAL_VALUE
+        return None
 
     # ---- register values --------------------------------------------------------------------
     def read_raw(self, reg: Register) -> int:
@@ -221,16 +244,43 @@ class WatlowF4Server:
             self.faults["open_sensor"] = {"input": n}
         elif fault == "disconnect":
             self.faults["disconnect"] = {}
-            if self._loop is not None:
-                self._run(self._close_server())
+            self._disconnect()
         else:
             raise ValueError(f"unknown fault {fault!r}; known: {', '.join(FAULTS)}")
 
     def clear_faults(self) -> None:
-        """End every fault; after ``disconnect`` listen again on the same port."""
+        """End every fault (after ``disconnect`` the transport is back)."""
         reconnect = "disconnect" in self.faults
         self.faults.clear()
-        if reconnect and self._loop is not None:
+        if reconnect:
+            self._reconnect()
+
+    def _disconnect(self) -> None:
+        """Transport side of the ``disconnect`` fault."""
+
+    def _reconnect(self) -> None:
+        """Transport side of the end of the ``disconnect`` fault."""
+
+
+class WatlowF4Server(WatlowF4Sim):
+    """A Watlow F4 on Modbus/TCP, in a daemon thread with its own event loop."""
+
+    def __init__(self, clock, chamber, *, alarm_band_c: float = DEFAULT_ALARM_BAND_C):
+        super().__init__(clock, chamber, alarm_band_c=alarm_band_c)
+        self.host = "127.0.0.1"
+        self.port = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._server: ModbusTcpServer | None = None
+        self._context = F4ServerContext(self)
+
+    def _disconnect(self) -> None:
+        if self._loop is not None:
+            self._run(self._close_server())
+
+    def _reconnect(self) -> None:
+        """Listen again on the same port."""
+        if self._loop is not None:
             self._run(self._listen(self.host, self.port))
 
     # ---- server thread ----------------------------------------------------------------------

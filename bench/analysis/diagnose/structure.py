@@ -52,14 +52,20 @@ def correlations(r: np.ndarray, covs: dict[str, np.ndarray]) -> dict[str, float]
     return out
 
 
+STOP_RATIO = 8
+"""Longest cluster of the structure plot: n/8 samples (the shortest residuals are 8 samples long)."""
+
+
 def allan(r: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    """Overlapping Allan deviation of rate samples ``r`` (deg/s) at octave cluster times (s) up to
-    n/8 samples (``bench.analysis.allan``, the one home of the Allan deviation)."""
+    """Overlapping Allan deviation (deg/s) of rate samples ``r`` (deg/s at ``fs`` Hz) against the
+    cluster time (s), clusters of 1, 2, 4 … n/:data:`STOP_RATIO` samples; empty for fewer than
+    :data:`STOP_RATIO` samples. Computed by :func:`bench.analysis.allan.overlapping_adev`, the one
+    home of the Allan deviation."""
     from bench.analysis.allan import octave_m, overlapping_adev
 
-    if r.shape[0] < 8:
+    if r.shape[0] < STOP_RATIO:
         return np.zeros(0), np.zeros(0)
-    res = overlapping_adev(r, fs, octave_m(r.shape[0], 8) / fs)
+    res = overlapping_adev(r, fs, m=octave_m(r.shape[0], STOP_RATIO))
     return res.taus_s, res.adev
 
 

@@ -1,0 +1,106 @@
+"""Where a run file goes: refusing a runs directory that cannot take the run, the file name of a
+run, and creating the file under a name that does not exist yet (never overwriting).
+
+Sizes in bytes; start times in UTC.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from datetime import datetime
+from pathlib import Path
+
+import h5py
+
+from bench.errors import DestinationError, RecorderError
+from bench.record.layout import as_utc
+from bench.record.reasons import mb, os_reason
+
+SPACE_MARGIN_BYTES = 50 * 1024 * 1024
+"""Free space (bytes) required on top of the estimated run-file size."""
+
+SUFFIX = ".h5"
+MAX_NAME_CHARS = 80
+"""Longest procedure-name part of a run-file name (characters)."""
+MAX_COLLISIONS = 10_000
+"""Names ``_1`` … tried before giving up when the plain name exists."""
+
+_NAME_BAD = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def check_destination(runs_dir: Path, estimated_bytes: int) -> None:
+    """Refuse a run before it starts if ``runs_dir`` cannot take its file.
+
+    Creates ``runs_dir`` if needed, proves it writable by creating and deleting a temporary file,
+    and requires ``estimated_bytes`` + 50 MB of free space (bytes, from ``shutil.disk_usage``).
+    Raises :class:`DestinationError` naming the problem and the directory.
+    """
+    runs_dir = Path(runs_dir)
+    make_runs_dir(runs_dir)
+    if not runs_dir.is_dir():
+        raise DestinationError(f"runs directory {runs_dir} is not a directory")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".bench-write-test-", dir=runs_dir)
+        try:
+            os.write(fd, b"bench")
+        finally:
+            os.close(fd)
+            os.unlink(probe)
+    except OSError as exc:
+        raise DestinationError(f"runs directory {runs_dir} is not writable: {os_reason(exc)}") from None
+    try:
+        free = shutil.disk_usage(runs_dir).free
+    except OSError as exc:
+        raise DestinationError(f"free space of runs directory {runs_dir} cannot be determined: {os_reason(exc)}") from None
+    need = max(int(estimated_bytes), 0) + SPACE_MARGIN_BYTES
+    if free < need:
+        raise DestinationError(
+            f"not enough free space in runs directory {runs_dir}: {mb(free)} free, the run needs "
+            f"{mb(need)} (estimated run file {mb(max(int(estimated_bytes), 0))} + {mb(SPACE_MARGIN_BYTES)} margin)"
+        )
+
+
+def make_runs_dir(runs_dir: Path) -> None:
+    """Create ``runs_dir`` (and its parents) if needed; :class:`DestinationError` if that fails."""
+    try:
+        runs_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DestinationError(f"runs directory {runs_dir} cannot be created: {os_reason(exc)}") from None
+
+
+def run_file_name(started_utc: datetime, procedure_name: str) -> str:
+    """File name of a run: ``<YYYYMMDDTHHMMSSZ>_<procedure>.h5`` with the start time in UTC.
+
+    The procedure name is reduced to ``[A-Za-z0-9._-]`` (other runs of characters become ``_``,
+    at most 80 characters, ``run`` if nothing is left). A naive datetime is taken as UTC.
+    """
+    stamp = as_utc(started_utc).strftime("%Y%m%dT%H%M%SZ")
+    name = _NAME_BAD.sub("_", procedure_name).strip("._-")[:MAX_NAME_CHARS].rstrip("._-") or "run"
+    return f"{stamp}_{name}{SUFFIX}"
+
+
+def create_new_file(runs_dir: Path, started_utc: datetime, procedure_name: str) -> tuple[h5py.File, Path]:
+    """Create ``runs_dir/<run_file_name>`` with HDF5's exclusive mode, ``_1``, ``_2`` … appended
+    while the name exists; an existing file is never opened. Returns the open file (latest HDF5
+    format, as SWMR needs) and its path. Raises :class:`DestinationError` if the directory cannot
+    take the file, :class:`RecorderError` if HDF5 fails to create it.
+    """
+    runs_dir = Path(runs_dir)
+    make_runs_dir(runs_dir)
+    base = run_file_name(started_utc, procedure_name)[: -len(SUFFIX)]
+    for n in range(MAX_COLLISIONS):
+        path = runs_dir / (f"{base}{SUFFIX}" if n == 0 else f"{base}_{n}{SUFFIX}")
+        if path.exists():
+            continue
+        try:
+            return h5py.File(path, "x", libver="latest"), path
+        except FileExistsError:
+            continue
+        except PermissionError as exc:
+            raise DestinationError(f"run file {path} cannot be created: {os_reason(exc)}") from None
+        except Exception as exc:  # noqa: BLE001 - h5py raises several types; report them all the same way
+            raise RecorderError(f"writing {path} failed: {os_reason(exc)}") from None
+    raise DestinationError(f"no free run-file name for {base} in {runs_dir}")
