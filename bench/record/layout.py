@@ -70,6 +70,18 @@ ATTR_ABORT_REASON = "abort_reason"
 ATTR_ROWS_TOTAL = "rows_total"
 """Rows over all streams (int64), written when the file is closed."""
 
+# unit under test and station (format 1 additions: absent in older files, read as "")
+ATTR_UNIT_SERIAL = "unit_serial"
+"""Serial number of the unit under test (``bench run --unit SN``); ``""`` when none was given."""
+ATTR_UNIT_PART = "unit_part"
+"""Part number of the unit under test (``--part``); ``""`` when not given."""
+ATTR_UNIT_REVISION = "unit_revision"
+"""Revision of the unit under test (``--revision``); ``""`` when not given."""
+ATTR_STATION = "station"
+"""Name of the test station (lab config ``station:``; default the host name)."""
+IDENTITY_ATTRS = (ATTR_UNIT_SERIAL, ATTR_UNIT_PART, ATTR_UNIT_REVISION, ATTR_STATION)
+"""Optional root attributes naming what was tested where."""
+
 ROOT_ATTRS = (
     ATTR_FORMAT_VERSION, ATTR_SOFTWARE_VERSION, ATTR_PROCEDURE_NAME, ATTR_PROCEDURE_PATH, ATTR_CONFIG_PATH,
     ATTR_OPERATOR, ATTR_HOST, ATTR_MODE, ATTR_STARTED_UTC, ATTR_ENDED_UTC, ATTR_STATUS, ATTR_ABORT_REASON,
