@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 import serial
 
+from drivers.base import Driver, Transient, check_timeout
 from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 from drivers import acs_protocol as proto
 from drivers.acs_protocol import DecodedBatch, FrameType, NakCode
@@ -47,8 +48,11 @@ def merge_batches(batches: list[DecodedBatch]) -> DecodedBatch:
     return DecodedBatch(**kwargs)
 
 
-class AcsBoard:
-    """One ACS/sensor board on a serial port (hardware, ``sim://`` simulator or pseudo-terminal)."""
+class AcsBoard(Driver):
+    """One ACS/sensor board on a serial port (hardware, ``sim://`` simulator or pseudo-terminal).
+
+    Idempotent commands (identify, get config, built-in test) are retried ``retries`` times when
+    no reply comes; commands that change the board's state are sent once."""
 
     kind = "acs_board"
     streams = True  # the runner records a data stream of this instrument
@@ -65,8 +69,9 @@ class AcsBoard:
         self.port = port
         self.compensation = compensation
         """Gyro compensation (:class:`bench.model.compensation.Compensation`, NPSAT1 Eq. 2) or None."""
-        self.timeout_s = timeout_s
-        self.retries = retries
+        self.timeout_s = check_timeout(timeout_s)
+        self.read_attempts = 1 + retries
+        self.name = "acs_board"
         self.on_traffic = on_traffic
         self.decoder = proto.FrameDecoder()
         self._pending: list[DecodedBatch] = []
@@ -123,9 +128,10 @@ class AcsBoard:
         """Run the built-in test; returns the failed-subsystem mask (0 = all passed)."""
         return proto.parse_bit(self._transact(FrameType.RUN_BIT, idempotent=True))
 
-    def safe_state(self) -> None:
+    def safe_state(self) -> str:
         """Stop streaming (the sensors stay powered: a stationary board is harmless)."""
         self.stop_stream()
+        return "STOP_STREAM: streaming stopped (sensors left powered)"
 
     # ---- data -------------------------------------------------------------------------------
     def poll(self) -> DecodedBatch:
@@ -153,12 +159,14 @@ class AcsBoard:
         return batch
 
     def _transact(self, command: int, payload: bytes = b"", *, idempotent: bool = False) -> bytes:
-        """Send one command and return the payload of its acknowledgement."""
+        """Send one command and return the payload of its acknowledgement (an idempotent one is
+        sent again when no reply comes, :attr:`read_attempts` times in all)."""
         frame = proto.encode_frame(command, payload)
         name = FrameType(command).name
-        attempts = 1 + (self.retries if idempotent else 0)
+        attempts = self.read_attempts if idempotent else 1
         budget = max(256, int(link_bytes_per_s(self.port.baudrate) * self.timeout_s))
-        for _ in range(attempts):
+
+        def attempt(_: int) -> bytes:
             try:
                 self.port.write(frame)
             except serial.SerialException as exc:
@@ -185,7 +193,9 @@ class AcsBoard:
                             reason = NakCode(code).name if code in NakCode._value2member_map_ else f"code {code}"
                             raise ProtocolError(f"acs_board refused {name}: {reason}")
                         return rpayload
-        raise InstrumentTimeout(f"acs_board: no reply to {name} within {self.timeout_s:g} s ({attempts} attempt(s))")
+            raise Transient(InstrumentTimeout(f"acs_board: no reply to {name} within {self.timeout_s:g} s ({attempts} attempt(s))"))
+
+        return self.read_retrying(attempt, attempts=attempts)
 
     def _traffic(self, direction: str, ftype: int, raw: bytes) -> None:
         if self.on_traffic is not None:

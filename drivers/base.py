@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable, ClassVar, TypeVar
+from typing import Any, Callable, ClassVar, TypeVar
 
 from drivers.errors import InstrumentError
 
@@ -56,6 +56,8 @@ class Driver:
     """Longest wait for one answer (s)."""
     name: str = ""
     """How errors name the instrument."""
+    port: Any = None
+    """The pyserial port of a driver on a serial link (or a port-like CAN byte stream); None otherwise."""
 
     def read_retrying(self, attempt: Callable[[int], T], *, attempts: int | None = None,
                       sleep: Callable[[float], None] = time.sleep) -> T:
@@ -76,7 +78,8 @@ class Driver:
     @property
     def baudrate(self) -> int | None:
         """Serial bit rate of the link (bit/s), None when the link is not a serial port."""
-        return None
+        rate = getattr(self.port, "baudrate", None)
+        return int(rate) if rate else None
 
     def identify(self) -> dict[str, str]:
         """Identity strings (model, serial, firmware…) for the run file."""

@@ -30,6 +30,7 @@ import canopen
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
+from drivers.base import Driver, Transient, check_timeout
 from drivers.clock import WallClock
 from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 from drivers.can_transport import open_bus, parse_can_url
@@ -194,15 +195,19 @@ class _Axis:
         self.limits_deg = (-math.inf, math.inf)
 
 
-class RateTable:
-    """The 2-axis rate table: ``rotation`` (node N) and ``tilt`` (node N+1). Angles deg, rates deg/s."""
+class RateTable(Driver):
+    """The 2-axis rate table: ``rotation`` (node N) and ``tilt`` (node N+1). Angles deg, rates deg/s.
+
+    SDO reads are retried once when no answer comes (both attempts within ``timeout_s``); writes
+    are sent once."""
 
     kind = "rate_table"
     streams = False  # no data stream: the runner records its commands and answers only
 
     def __init__(self, bus: can.BusABC, node_id: int = 1, *, timeout_s: float = 0.5, on_traffic=None, clock=None) -> None:
         self.bus = bus
-        self.timeout_s = float(timeout_s)
+        self.timeout_s = check_timeout(timeout_s)
+        self.name = f"rate_table (nodes {node_id}, {node_id + 1})"
         self.on_traffic = on_traffic
         self.clock = clock or WallClock()
         self._lock = threading.RLock()
@@ -309,18 +314,21 @@ class RateTable:
                 if state == OPERATION_ENABLED:
                     self._write(ax, Obj.CONTROLWORD, Cw.ENABLE_OPERATION | Cw.HALT)
 
-    def safe_state(self) -> None:
+    def safe_state(self) -> str:
         """Both axes to rest and de-energised: quick stop (0x6085 deceleration), wait for zero speed
         (bounded), then disable voltage. A faulted axis is already without torque and is left as is;
-        the other axis is still stopped. Raises the first error met, after trying both axes."""
+        the other axis is still stopped. Raises the first error met, after trying both axes.
+        Returns what each axis was told."""
         first: Exception | None = None
+        done = []
         for ax in self.axes.values():
             try:
-                self._safe_axis(ax)
+                done.append(f"{ax.name}: {self._safe_axis(ax)}")
             except InstrumentError as exc:
                 first = first or exc
         if first is not None:
             raise first
+        return "; ".join(done)
 
     # ---- status -----------------------------------------------------------------------------
     def monitor_columns(self) -> list[tuple[str, str]]:
@@ -518,11 +526,14 @@ class RateTable:
                 raise InstrumentTimeout(f"rate_table {ax.name}: no {what} (statusword 0x{sw:04X})")
             self.clock.sleep(POLL_S / 5)
 
-    def _safe_axis(self, ax: _Axis) -> None:
+    def _safe_axis(self, ax: _Axis) -> str:
+        """Bring one axis to rest and disable its voltage; returns what it was told."""
         state = decode_state(self._read(ax, Obj.STATUSWORD))
         if state in FAULT_STATES:
-            return
+            return "in FAULT, left without torque"
+        told = "disable voltage (0x6040 = 0x00)"
         if state == OPERATION_ENABLED:
+            told = "quick stop (0x6040 = 0x02), stopped, " + told
             self._write(ax, Obj.CONTROLWORD, Cw.QUICK_STOP)
             rate = abs(self._read(ax, Obj.VELOCITY_ACTUAL))
             decel = max(self._read(ax, Obj.QUICK_STOP_DECEL), 1)
@@ -533,6 +544,7 @@ class RateTable:
                 self.clock.sleep(min(POLL_S, max(deadline - self.clock.now(), 0.0)) or POLL_S)
                 rate = abs(self._read(ax, Obj.VELOCITY_ACTUAL))
         self._write(ax, Obj.CONTROLWORD, Cw.DISABLE_VOLTAGE)
+        return told
 
     def _fault(self, ax: _Axis) -> DeviceFault:
         code = None
@@ -564,25 +576,27 @@ class RateTable:
         where = f"rate_table {ax.name} (node {ax.node.id}): {self._op}"
         attempts = 1 + READ_RETRIES if reading else 1
         sdo = ax.node.sdo
+        sdo.RESPONSE_TIMEOUT = self.timeout_s / attempts  # both attempts of a read within timeout_s
+
+        def attempt(_: int):
+            try:
+                if reading:
+                    return var.decode_raw(sdo.upload(var.index, var.subindex))
+                sdo.download(var.index, var.subindex, var.encode_raw(value))
+                return None
+            except SdoAbortedError as exc:
+                raise ProtocolError(f"{where}: SDO abort 0x{exc.code:08X} ({_abort_text(exc)})") from None
+            except SdoCommunicationError as exc:
+                if "No SDO response" not in str(exc):
+                    raise ProtocolError(f"{where}: {exc}") from None
+                raise Transient(InstrumentTimeout(f"{where}: no answer within {self.timeout_s:g} s")) from None
+            except can.CanError as exc:
+                raise InstrumentError(f"{where}: CAN error: {exc}") from None
+            except (struct.error, ValueError, TypeError) as exc:
+                raise ProtocolError(f"{where}: bad data: {exc}") from None
+
         try:
-            for attempt in range(attempts):
-                sdo.RESPONSE_TIMEOUT = self.timeout_s / attempts
-                try:
-                    if reading:
-                        return var.decode_raw(sdo.upload(var.index, var.subindex))
-                    sdo.download(var.index, var.subindex, var.encode_raw(value))
-                    return None
-                except SdoAbortedError as exc:
-                    raise ProtocolError(f"{where}: SDO abort 0x{exc.code:08X} ({_abort_text(exc)})") from None
-                except SdoCommunicationError as exc:
-                    if "No SDO response" not in str(exc):
-                        raise ProtocolError(f"{where}: {exc}") from None
-                    if attempt + 1 == attempts:
-                        raise InstrumentTimeout(f"{where}: no answer within {self.timeout_s:g} s") from None
-                except can.CanError as exc:
-                    raise InstrumentError(f"{where}: CAN error: {exc}") from None
-                except (struct.error, ValueError, TypeError) as exc:
-                    raise ProtocolError(f"{where}: bad data: {exc}") from None
+            return self.read_retrying(attempt, attempts=attempts)
         finally:
             self._flush_traffic()
 

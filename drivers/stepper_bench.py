@@ -15,6 +15,7 @@ import re
 
 import serial
 
+from drivers.base import Driver, check_timeout
 from drivers.errors import ProtocolError
 from drivers.stepper_speed import BenchSpeedCalibration
 from drivers.transport import LineChannel, open_serial
@@ -38,7 +39,7 @@ _N_FIELD = re.compile(r"\|N:(?P<n>-?[0-9]{1,9})(?=\||$)")
 _VERSION = re.compile(r"^\[VER:(?P<firmware>[^:\]]*):(?P<serial>[^\]]*)\]$")
 
 
-class StepperBench:
+class StepperBench(Driver):
     """One stepper rotating bench on a serial port. Rates in deg/s, angles in deg."""
 
     kind = "stepper_bench"
@@ -47,8 +48,10 @@ class StepperBench:
     def __init__(self, port: serial.SerialBase, *, timeout_s: float = 0.5, calibration: BenchSpeedCalibration | None = None,
                  on_traffic=None):
         self.port = port
+        self.name = "stepper_bench"
+        self.timeout_s = check_timeout(timeout_s)
         self.calibration = calibration or BenchSpeedCalibration()
-        self.channel = LineChannel(port, timeout_s, "stepper_bench", on_traffic, meanings=MEANINGS)
+        self.channel = LineChannel(port, self.timeout_s, self.name, on_traffic, meanings=MEANINGS)
 
     @property
     def on_traffic(self):
@@ -114,7 +117,8 @@ class StepperBench:
         s = self.status()
         return {"angle": s["angle_deg"], "n": float(s["n"])}
 
-    def safe_state(self) -> None:
+    def safe_state(self) -> str:
         """Stop turning: realtime hold first (acts at once), then a confirmed ``$STOP``."""
         self.channel.send_realtime(b"!")
         self.stop()
+        return "feed hold (!), then $STOP: stopped"

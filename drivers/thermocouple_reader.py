@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import serial
 
+from drivers.base import Driver, check_timeout
 from drivers.errors import DeviceFault, ProtocolError
 from drivers.transport import LineChannel, open_serial
 
@@ -28,14 +29,18 @@ class Scan:
     open_channels: list[int] = field(default_factory=list)
 
 
-class ThermocoupleReader:
+class ThermocoupleReader(Driver):
+    """A Keysight 34970A/34972A-class data logger scanning thermocouples (SCPI). Temperatures in degC."""
+
     kind = "thermocouple_reader"
     streams = False
 
     def __init__(self, port: serial.SerialBase, *, timeout_s: float = 1.0, on_traffic=None,
                  monitor_channels: list[int] | None = None, tc_type: str = "K"):
         self.port = port
-        self.channel = LineChannel(port, timeout_s, "thermocouples", on_traffic)
+        self.name = "thermocouples"
+        self.timeout_s = check_timeout(timeout_s)
+        self.channel = LineChannel(port, self.timeout_s, self.name, on_traffic)
         self.channels: list[int] = []
         self.monitor_channels = list(monitor_channels or DEFAULT_CHANNELS)
         self.tc_type = tc_type
@@ -120,5 +125,6 @@ class ThermocoupleReader:
             raise ProtocolError(f"thermocouples: RJUN? answered {answer!r}, not a temperature")
         return value
 
-    def safe_state(self) -> None:
+    def safe_state(self) -> str:
         """A logger only measures: nothing to make safe."""
+        return "nothing to make safe (measures only)"

@@ -22,6 +22,7 @@ from typing import Callable
 
 import serial
 
+from drivers.base import Driver, check_timeout
 from drivers.errors import DeviceFault, InstrumentError, ProtocolError
 from drivers.transport import LineChannel, open_serial
 
@@ -109,7 +110,7 @@ class MnemonicChannel(LineChannel):
                 raise ProtocolError(f"{self.name}: NAK (refused) for {mnemonic!r}")
 
 
-class Tpg261:
+class Tpg261(Driver):
     """TPG 261 gauge channel 1. Pressures in Torr whatever the unit's display unit."""
 
     kind = "tpg261"
@@ -119,7 +120,8 @@ class Tpg261:
                  on_traffic: Callable[[str, str, bytes], None] | None = None, name: str = "pressure gauge"):
         self.port = port
         self.name = name
-        self.channel = MnemonicChannel(port, timeout_s, name, on_traffic)
+        self.timeout_s = check_timeout(timeout_s)
+        self.channel = MnemonicChannel(port, self.timeout_s, name, on_traffic)
         self.unit = 1
 
     @classmethod
@@ -196,5 +198,6 @@ class Tpg261:
         """The ``ERR`` word (``0000`` = none) [U: VGC401 form]."""
         return self.command("ERR")
 
-    def safe_state(self) -> None:
+    def safe_state(self) -> str:
         """A gauge only measures: nothing to make safe."""
+        return "nothing to make safe (measures only)"

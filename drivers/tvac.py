@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Callable
 
+from drivers.base import Driver
 from drivers.tpg261 import Tpg261
 from drivers.watlow_f4 import RTU_BAUDRATE, WatlowF4
 
@@ -17,7 +18,7 @@ EVENT_VENT = 2
 SAFE_SET_POINT_C = 20.0  # room temperature: neither condensation on the unit nor stress on it
 
 
-class TvacChamber:
+class TvacChamber(Driver):
     """Composite driver; temperatures in °C, ramp rates in °C/min, pressure in Torr."""
 
     kind = "tvac"
@@ -26,6 +27,8 @@ class TvacChamber:
     def __init__(self, controller: WatlowF4, gauge: Tpg261, *, safe_set_point_c: float = SAFE_SET_POINT_C):
         self.controller = controller
         self.gauge = gauge
+        self.name = "tvac"
+        self.timeout_s = controller.timeout_s
         self.safe_set_point_c = safe_set_point_c
 
     @classmethod
@@ -103,8 +106,10 @@ class TvacChamber:
         self.controller.set_event(EVENT_PUMP, False)
         self.controller.set_event(EVENT_VENT, True)
 
-    def safe_state(self) -> None:
+    def safe_state(self) -> str:
         """Ramp off and set point to ``safe_set_point_c``. The vacuum is left as it is: venting a
-        cold chamber would condense water on the unit; venting is a deliberate step once warm."""
+        cold chamber would condense water on the unit; venting is a deliberate step once warm.
+        Returns what the controller was told."""
         self.controller.set_ramp_rate_c_per_min(0.0)
         self.controller.set_set_point_c(self.safe_set_point_c)
+        return f"ramp off, set point {self.safe_set_point_c:g} degC; vacuum left as it is (no vent)"

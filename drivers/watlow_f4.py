@@ -20,7 +20,6 @@ reading the register back.
 
 from __future__ import annotations
 
-import time
 import urllib.parse
 from dataclasses import dataclass
 from typing import Callable
@@ -29,6 +28,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerType
 
+from drivers.base import Driver, Transient, check_timeout
 from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 
 UNIT_ID = 1  # F4 factory device address 1 (protocols.md section 1 [V])
@@ -154,7 +154,7 @@ def parse_modbus_url(url: str) -> tuple[str, str, int, int]:
     raise ValueError(f"expected modbus-tcp://HOST:PORT or modbus-rtu://PORT, got {url!r}")
 
 
-class WatlowF4:
+class WatlowF4(Driver):
     """Watlow F4 loop 1 over Modbus. Temperatures in °C, rates in °C/min, power in %."""
 
     kind = "watlow_f4"
@@ -163,7 +163,7 @@ class WatlowF4:
     def __init__(self, client, *, timeout_s: float = 0.5, unit: int = UNIT_ID, name: str = "tvac controller",
                  on_traffic: Callable[[str, str, bytes], None] | None = None, read_retries: int = READ_RETRIES):
         self.client = client
-        self.timeout_s = timeout_s
+        self.timeout_s = check_timeout(timeout_s)
         self.unit = unit
         self.name = name
         self.on_traffic = on_traffic
@@ -209,23 +209,20 @@ class WatlowF4:
         if not 1 <= count <= MAX_REGS_PER_READ:
             raise ValueError(f"count must be 1..{MAX_REGS_PER_READ}")
         self._op = f"read {address}" if count == 1 else f"read {address}+{count}"
-        attempt = 0
-        while True:
+
+        def attempt(_: int) -> list[int]:
             try:
                 rr = self._call(lambda: self.client.read_holding_registers(address, count=count, device_id=self.unit))
-                code = getattr(rr, "exception_code", None) if rr.isError() else None
-                if code == 6 and attempt < self.read_retries:
-                    attempt += 1
-                    time.sleep(BUSY_PAUSE_S)
-                    continue
-                self._check(rr, address, "reading")
-                if len(rr.registers) != count:
-                    raise ProtocolError(f"{self.name}: {len(rr.registers)} registers for {count} read at {address}")
-                return list(rr.registers)
             except _LinkLost:
-                if attempt >= self.read_retries:
-                    raise InstrumentError(f"{self.name}: connection lost reading register {address}") from None
-                attempt += 1
+                raise Transient(InstrumentError(f"{self.name}: connection lost reading register {address}")) from None
+            if rr.isError() and getattr(rr, "exception_code", None) == 6:  # busy: ask again after a pause
+                raise Transient(self._exception(rr, address, "reading"), pause_s=BUSY_PAUSE_S)
+            self._check(rr, address, "reading")
+            if len(rr.registers) != count:
+                raise ProtocolError(f"{self.name}: {len(rr.registers)} registers for {count} read at {address}")
+            return list(rr.registers)
+
+        return self.read_retrying(attempt, attempts=1 + self.read_retries)
 
     def write_raw(self, address: int, raw: int) -> None:
         """FC 6 write of one raw register. Never retried: a timeout leaves the outcome unknown."""
@@ -255,13 +252,17 @@ class WatlowF4:
             self.client.close()
             raise InstrumentError(f"{self.name}: link error: {exc}") from None
 
+    def _exception(self, rr, address: int, action: str) -> ProtocolError:
+        """The :class:`ProtocolError` naming the register and the exception of response ``rr``."""
+        code = getattr(rr, "exception_code", 0)
+        reg = BY_ADDRESS.get(address)
+        label = f" ({reg.name})" if reg is not None else ""
+        return ProtocolError(f"{self.name}: exception {exception_text(code)} {action} register {address}{label}")
+
     def _check(self, rr, address: int, action: str) -> None:
-        """:class:`ProtocolError` naming the register and the exception if ``rr`` is an exception response."""
+        """Raise :meth:`_exception` if ``rr`` is an exception response."""
         if rr.isError():
-            code = getattr(rr, "exception_code", 0)
-            reg = BY_ADDRESS.get(address)
-            label = f" ({reg.name})" if reg is not None else ""
-            raise ProtocolError(f"{self.name}: exception {exception_text(code)} {action} register {address}{label}")
+            raise self._exception(rr, address, action)
 
     # ---- scaled access ----------------------------------------------------------------------
     def read(self, name: str) -> float:

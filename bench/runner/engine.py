@@ -204,29 +204,31 @@ class Runner:
         for name in list(self.lab.instruments):
             self.flush_notices()
             try:
-                self._safe_state(name)
+                told = self._safe_state(name)
             except Exception as exc:  # noqa: BLE001 - the abort path must reach every instrument and the file
                 self._event("error", name, f"safe state failed: {describe(exc)}")
                 self.progress.message(f"{name}: safe state failed: {describe(exc)}")
                 continue
-            self._event("safe_state", name, "streaming stopped" if name in self.ingest.keys else "safe state reached")
+            self._event("safe_state", name, told or "safe state reached")
             if name in self.ingest.keys:
                 try:
                     self._drain(name)  # salvage the last frames; the instrument is already safe
                 except Exception as exc:  # noqa: BLE001
                     self._event("error", name, f"last frames not read: {describe(exc)}")
 
-    def _safe_state(self, name: str) -> None:
+    def _safe_state(self, name: str) -> str:
         """Bring ``name`` to its safe state; a link fault is retried through a reconnection (within
-        the instrument's ``reconnect_timeout``), as the safe state matters most when links fail."""
+        the instrument's ``reconnect_timeout``), as the safe state matters most when links fail.
+        Returns what the instrument was told (the driver's account)."""
         try:
-            self.lab.instruments[name].safe_state()
+            told = self.lab.instruments[name].safe_state()
         except DeviceFault:
             raise
         except (InstrumentError, OSError) as exc:
             self.monitor.reconnect(name, exc, aborting=True)
-            self.lab.instruments[name].safe_state()
+            told = self.lab.instruments[name].safe_state()
         self.ingest.streaming.clear()
+        return str(told or "")
 
     def _event(self, kind: str, source: str, message: str, step: int = -1) -> None:
         """Record an event on the abort path, where the recorder itself may be what failed."""

@@ -20,12 +20,14 @@ class Instrument(Protocol):
 
     kind: str
     streams: bool
+    baudrate: int | None
 
     def identify(self) -> dict[str, str]:
         """Identity strings (model, serial, firmware…) recorded in the run file."""
 
-    def safe_state(self) -> None:
-        """Put the instrument where nothing can be harmed (heaters off, table stopped…)."""
+    def safe_state(self) -> str:
+        """Put the instrument where nothing can be harmed (heaters off, table stopped…); returns
+        what it was told, for the run file's ``safe_state`` event."""
 
     def close(self) -> None:
         """Release the link."""
@@ -79,6 +81,7 @@ class Streaming(Protocol):
 
 
 def link_baudrate(drv: Instrument) -> str:
-    """The serial bit rate of ``drv``'s link as recorded in the run file ("" when not serial)."""
-    rate = getattr(drv, "baudrate", None)
+    """The serial bit rate of ``drv``'s link as recorded in the run file ("" when not serial;
+    drivers derive from ``drivers.base.Driver``, whose ``baudrate`` is None off a serial port)."""
+    rate = drv.baudrate
     return "" if rate is None else str(rate)
