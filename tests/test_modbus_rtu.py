@@ -8,7 +8,6 @@ from __future__ import annotations
 import itertools
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -28,12 +27,12 @@ from bench.sim.watlow_f4_rtu import WatlowF4RtuSim
 from bench.sim.watlow_f4_server import WatlowF4Server
 from drivers.tvac import TvacChamber
 from drivers.watlow_f4 import REGISTERS, WatlowF4
+from tests.sim_serve import sim_serve
 from tests.conftest import ROOT, SIM_CONFIG, run_cli
 
 TIMEOUT_S = 0.3
 CHAMBER_SHORT = ROOT / "tests" / "sessions" / "chamber_short.yaml"
 ANSWERS = ROOT / "procedures" / "answers" / "ci.yaml"
-SERVE_WAIT_S = 30.0  # longest wait for `bench sim serve` to print its endpoints (s)
 _names = itertools.count()
 
 # the PV read of docs/golden/watlow-f4.md row G1, request and response (RTU)
@@ -237,28 +236,11 @@ def test_dry_run_of_a_chamber_procedure_over_rtu_replays_with_match(tmp_path):
 def served_rtu(tmp_path):
     if sys.platform == "win32":
         pytest.skip("pseudo-terminals are POSIX")
-    cfg = rtu_config(tmp_path)
-    server = subprocess.Popen([sys.executable, "-m", "bench", "sim", "serve", "--config", str(cfg), "--instrument", "tvac"],
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    endpoints: dict[str, tuple[str, str]] = {}
-    try:
-        deadline = time.monotonic() + SERVE_WAIT_S
-        while "tvac.gauge" not in endpoints and time.monotonic() < deadline:
-            line = server.stdout.readline()
-            assert line, server.stderr.read()
-            name, _, rest = line.strip().partition(": ")
-            transport, _, address = rest.partition(" ")
-            endpoints[name] = (transport, address)
-        assert endpoints.get("tvac", ("", ""))[0] == "serial", endpoints
-        yield endpoints["tvac"][1]
-    finally:
-        server.send_signal(signal.SIGTERM)
-        try:
-            server.wait(timeout=10)
-        finally:
-            if server.poll() is None:
-                server.kill()
-    assert server.returncode == 0, server.stderr.read()
+    with sim_serve(rtu_config(tmp_path), "--instrument", "tvac") as served:
+        path = served.endpoint("tvac")
+        assert served.transport("tvac") == "serial", served.endpoints
+        served.endpoint("tvac.gauge")
+        yield path
 
 
 def test_driver_in_this_process_talks_rtu_to_the_served_controller(served_rtu):

@@ -5,23 +5,17 @@
 
 from __future__ import annotations
 
-import queue
 import re
-import signal
-import subprocess
 import sys
-import threading
-import time
 
 import pytest
 
-from tests.conftest import ROOT
+from tests.sim_serve import sim_serve
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 pyvisa = pytest.importorskip("pyvisa", reason="pyvisa not installed (test extra: python3 dev.py installs it)")
 pytest.importorskip("pyvisa_py", reason="pyvisa-py not installed (test extra: python3 dev.py installs it)")
 
-STARTUP_S = 30.0  # longest wait for `bench sim serve` to print its endpoints (s)
 VISA_TIMEOUT_MS = 5000  # PyVISA I/O timeout (ms)
 ROOM_C = 20.0  # the world's ambient temperature: chamber and mount at rest (degC)
 TOLERANCE_C = 2.0  # 34970A type-K accuracy 1.0 degC + reference junction 0.8 degC, rounded up
@@ -48,32 +42,8 @@ def served(tmp_path_factory):
     """`bench sim serve` of the logger alone; yields {transport: address} of its endpoints."""
     cfg = tmp_path_factory.mktemp("pyvisa") / "logger.yaml"
     cfg.write_text(CONFIG)
-    server = subprocess.Popen([sys.executable, "-m", "bench", "sim", "serve", "--config", str(cfg)],
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: queue.Queue[str] = queue.Queue()
-    threading.Thread(target=lambda: [lines.put(x) for x in server.stdout], daemon=True).start()
-    endpoints: dict[str, str] = {}
-    deadline = time.monotonic() + STARTUP_S
-    try:
-        while not {"tcp", "serial"} <= set(endpoints):
-            try:
-                text = lines.get(timeout=max(0.0, deadline - time.monotonic()))
-            except queue.Empty:
-                pytest.fail(f"bench sim serve printed no endpoints within {STARTUP_S} s: {endpoints}")
-            name, _, rest = text.strip().partition(": ")
-            transport, _, address = rest.partition(" ")
-            if name == "thermocouples":
-                endpoints[transport] = address
-        yield endpoints
-    finally:
-        server.send_signal(signal.SIGTERM)
-        try:
-            server.wait(timeout=10)
-        finally:
-            if server.poll() is None:
-                server.kill()
-                server.wait(timeout=10)
-    assert server.returncode == 0, server.stderr.read()
+    with sim_serve(cfg) as server:
+        yield {transport: server.endpoint("thermocouples", transport) for transport in ("tcp", "serial")}
 
 
 @pytest.fixture(scope="module")

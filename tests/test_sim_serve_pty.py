@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -11,26 +10,16 @@ import time
 import pytest
 
 from drivers.acs_board import AcsBoard
-from tests.conftest import ROOT, SIM_CONFIG
+from tests.conftest import SIM_CONFIG
+from tests.sim_serve import sim_serve
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
 
 def test_driver_in_this_process_talks_to_served_simulator():
-    server = subprocess.Popen(
-        [sys.executable, "-m", "bench", "sim", "serve", "--config", str(SIM_CONFIG)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    try:
-        endpoints = {}
-        while "acs_board" not in endpoints:
-            line = server.stdout.readline()
-            assert line, server.stderr.read()
-            name, _, rest = line.strip().partition(": ")
-            transport, _, address = rest.partition(" ")
-            endpoints[name] = (transport, address)
-        transport, path = endpoints["acs_board"]
-        assert transport == "serial" and path.startswith("/dev/"), endpoints
+    with sim_serve(SIM_CONFIG) as served:
+        path = served.endpoint("acs_board")
+        assert served.transport("acs_board") == "serial" and path.startswith("/dev/"), served.endpoints
         board = AcsBoard.open(path, timeout_s=1.0)
         assert board.identify()["model"].startswith("ACS-IMU")
         board.sensor_power(True)
@@ -46,14 +35,6 @@ def test_driver_in_this_process_talks_to_served_simulator():
         board.close()
         assert 120 <= frames <= 260  # 200 Hz for about a second, over a real tty
         assert board.decoder.crc_errors == 0 and board.decoder.dropped_frames == 0
-    finally:
-        server.send_signal(signal.SIGTERM)
-        try:
-            server.wait(timeout=10)
-        finally:
-            if server.poll() is None:
-                server.kill()
-    assert server.returncode == 0, server.stderr.read()
 
 
 def _free_port() -> int:
@@ -72,18 +53,12 @@ def test_serve_starts_all_five_and_foreign_clients_reach_them(tmp_path):
     port = _free_port()
     text = SIM_CONFIG.read_text().replace("modbus_port: 5020", f"modbus_port: {port}")
     text = text.replace("sensor_model: sensors/", f"sensor_model: {SIM_CONFIG.parent}/sensors/")
+    text = text.replace("      serial: SIM-0003\n", "      serial: SIM-0003\n      scpi_port: 0\n")  # any free port, not 5025
     cfg = tmp_path / "sim.yaml"
     cfg.write_text(text)
-    server = subprocess.Popen([sys.executable, "-m", "bench", "sim", "serve", "--config", str(cfg)],
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        endpoints: dict[str, tuple[str, str]] = {}
-        while "rate_table.slcan" not in endpoints:
-            line = server.stdout.readline()
-            assert line, server.stderr.read()
-            name, _, rest = line.strip().partition(": ")
-            transport, _, address = rest.partition(" ")
-            endpoints[name] = (transport, address)
+    with sim_serve(cfg) as served:
+        served.endpoint("rate_table.slcan")
+        endpoints = {n: (t, a) for n, t, a in served.endpoints}
         for name in ("acs_board", "stepper_bench", "thermocouples", "tvac.gauge", "rate_table.slcan"):
             assert endpoints[name][0] == "serial" and endpoints[name][1].startswith("/dev/"), endpoints
         assert endpoints["tvac"] == ("modbus-tcp", f"127.0.0.1:{port} (unit id 1)")
@@ -107,11 +82,3 @@ def test_serve_starts_all_five_and_foreign_clients_reach_them(tmp_path):
                              capture_output=True, text=True, timeout=20)
         assert res.returncode == 0, res.stdout + res.stderr
         assert re.search(r"\[100\]:\s+200\b", res.stdout), res.stdout  # 20.0 degC in tenths of a degree
-    finally:
-        server.send_signal(signal.SIGTERM)
-        try:
-            server.wait(timeout=10)
-        finally:
-            if server.poll() is None:
-                server.kill()
-    assert server.returncode == 0, server.stderr.read()

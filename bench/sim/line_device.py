@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import threading
 
+from bench.sim.registry import ReplyBuffer
 
-class LineDeviceSim:
+
+class LineDeviceSim(ReplyBuffer):
     """Subclasses implement :meth:`on_line` and, for realtime bytes, :meth:`on_realtime`."""
 
     realtime_bytes: frozenset[int] = frozenset()
@@ -64,26 +66,10 @@ class LineDeviceSim:
                 self.eol = saved_eol
 
     # ---- SerialDevice -----------------------------------------------------------------------
-    def set_baudrate(self, baudrate: int) -> None:
-        self.baudrate = int(baudrate)
-
     def discard_input(self) -> None:
         with self._lock:
             self._in.clear()
             self._overflow = False
-
-    def take_output(self, t_s: float, max_bytes: int | None = None) -> bytes:
-        with self._lock:
-            k = len(self._out) if max_bytes is None else min(max_bytes, len(self._out))
-            data = bytes(self._out[:k])
-            del self._out[:k]
-            return data
-
-    def pending_bytes(self, t_s: float) -> int:
-        return len(self._out)
-
-    def next_output_time(self) -> float | None:
-        return self.clock.now() if self._out else None
 
     def receive(self, data: bytes) -> None:
         with self._lock:

@@ -31,6 +31,33 @@ class SerialDevice(Protocol):
     def discard_input(self) -> None: ...
 
 
+class ReplyBuffer:
+    """The output side of a device that answers at once: replies wait in ``_out`` (guarded by
+    ``_lock``) and are due at the clock's current time. Subclasses set ``clock``, ``baudrate``,
+    ``_out`` (bytearray) and ``_lock`` in their constructor."""
+
+    clock: object
+    baudrate: int
+    _out: bytearray
+    _lock: threading.RLock
+
+    def set_baudrate(self, baudrate: int) -> None:
+        self.baudrate = int(baudrate)
+
+    def take_output(self, t_s: float, max_bytes: int | None = None) -> bytes:
+        with self._lock:
+            k = len(self._out) if max_bytes is None else min(max_bytes, len(self._out))
+            data = bytes(self._out[:k])
+            del self._out[:k]
+            return data
+
+    def pending_bytes(self, t_s: float) -> int:
+        return len(self._out)
+
+    def next_output_time(self) -> float | None:
+        return self.clock.now() if self._out else None
+
+
 _devices: dict[str, SerialDevice] = {}
 _lock = threading.Lock()
 

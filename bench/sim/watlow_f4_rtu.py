@@ -30,6 +30,7 @@ import threading
 
 from pymodbus.constants import ExcCodes
 
+from bench.sim.registry import ReplyBuffer
 from bench.sim.watlow_f4_server import DEFAULT_ALARM_BAND_C, WatlowF4Sim
 from drivers.watlow_f4 import MAX_REGS_PER_READ, RTU_BAUDRATE, UNIT_ID
 
@@ -58,7 +59,7 @@ def silent_interval_s(baudrate: int) -> float:
     return FIXED_GAP_S if baudrate > 19200 else 3.5 * BITS_PER_CHAR / baudrate
 
 
-class WatlowF4RtuSim(WatlowF4Sim):
+class WatlowF4RtuSim(ReplyBuffer, WatlowF4Sim):
     """A Watlow F4 answering Modbus RTU on a serial line at ``baudrate`` bit/s, address ``unit``."""
 
     def __init__(self, clock, chamber, *, baudrate: int = RTU_BAUDRATE, unit: int = UNIT_ID,
@@ -77,25 +78,9 @@ class WatlowF4RtuSim(WatlowF4Sim):
         return super().answering and "disconnect" not in self.faults
 
     # ---- SerialDevice -----------------------------------------------------------------------
-    def set_baudrate(self, baudrate: int) -> None:
-        self.baudrate = int(baudrate)
-
     def discard_input(self) -> None:
         with self._lock:
             self._in.clear()
-
-    def take_output(self, t_s: float, max_bytes: int | None = None) -> bytes:
-        with self._lock:
-            k = len(self._out) if max_bytes is None else min(max_bytes, len(self._out))
-            data = bytes(self._out[:k])
-            del self._out[:k]
-            return data
-
-    def pending_bytes(self, t_s: float) -> int:
-        return len(self._out)
-
-    def next_output_time(self) -> float | None:
-        return self.clock.now() if self._out else None
 
     def receive(self, data: bytes) -> None:
         """Bytes from the master at the clock's current time."""
