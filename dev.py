@@ -48,19 +48,21 @@ def ensure_env() -> None:
     STAMP.write_text(want + "\n")
 
 
-TEST_TOOLS = {"mbpoll": "mbpoll"}
-"""Debian packages of third-party protocol clients the tests use when present (command -> package)."""
+TEST_TOOLS = {"mbpoll": "mbpoll", "pg_ctlcluster": "postgresql"}
+"""Debian packages of third-party programs the tests use when present (command -> package): protocol
+clients, and the PostgreSQL server the catalogue tests start a throwaway cluster of (its initdb and
+pg_ctl live in /usr/lib/postgresql/*/bin, off PATH; pg_ctlcluster comes with the server)."""
 
 
 def ensure_test_tools() -> None:
-    """Install missing protocol clients with apt-get where allowed (root on Debian); the tests that
+    """Install missing third-party programs with apt-get where allowed (root on Debian); the tests that
     need one skip with the reason printed otherwise."""
     import shutil
 
     missing = [pkg for cmd, pkg in TEST_TOOLS.items() if shutil.which(cmd) is None]
     if not missing or shutil.which("apt-get") is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
         return
-    _say(f"installing {', '.join(missing)} with apt-get (third-party protocol clients for the tests)")
+    _say(f"installing {', '.join(missing)} with apt-get (third-party programs the tests use)")
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
     try:
         ok = subprocess.run(["apt-get", "install", "-y", "-q", *missing], env=env, capture_output=True, timeout=300).returncode == 0

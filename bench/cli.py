@@ -12,81 +12,192 @@ import os
 import signal
 import sys
 from pathlib import Path
-
-from rich.console import Console
-from rich.table import Table
+from typing import TYPE_CHECKING
 
 from bench import __version__
+from bench.cli_common import Parser as _Parser
+from bench.cli_common import add_force, epilog, quantity
 from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, KNOWN_ERRORS, InputError, InputErrors
 
+if TYPE_CHECKING:  # imported where used: `bench --help` and `bench --version` stay light (docs/benchmarks.md)
+    from rich.console import Console
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports usage errors as one line and exit code 2."""
 
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+PARAM_HELP = ("override a procedure parameter, with units where it has them, e.g. -p cold=-20degC -p hold=30min "
+              "(repeatable; default: the procedure's values)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="bench", description="Ground-support test benches for spacecraft attitude sensors.")
-    p.add_argument("--version", action="version", version=f"bench {__version__}")
-    p.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    """The ``bench`` parser; every command's ``--help`` has its exit codes and examples."""
+    p = _Parser(prog="bench", top_level=True,
+                description="Ground-support test benches for spacecraft attitude sensors: run YAML test procedures on real "
+                            "or simulated instruments, record every run to an HDF5 run file, analyse and report it.",
+                epilog=epilog("bench run procedures/startup_profile.yaml --config configs/sim.yaml --sim",
+                              "bench validate procedures/thermal_ramp_ambient.yaml --config configs/lab.yaml",
+                              "bench COMMAND --help                      # each command's options, exit codes and examples",
+                              ok="success",
+                              failed="a run failed (a check did not pass) or aborted, a replay diverged, an instrument did "
+                                     "not answer; or an unexpected error (one line; --debug shows the traceback)",
+                              notes="From the instruments on the bench to a first real run: docs/hardware.md."))
+    p.add_argument("--version", action="version", version=f"bench {__version__}", help="print the version and exit")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
-    r = sub.add_parser("run", help="run a procedure (real instruments unless --sim)")
-    r.add_argument("procedure", type=Path, help="procedure YAML file")
-    r.add_argument("--config", type=Path, required=True, help="lab config YAML file")
-    r.add_argument("--sim", action="store_true", help="simulated instruments behind the same drivers (virtual time)")
-    r.add_argument("--realtime", action="store_true", help="with --sim: run at wall-clock pace")
+    r = sub.add_parser(
+        "run", help="run a procedure (real instruments unless --sim)",
+        description="Run a procedure on the instruments of the lab config: on their ports, or with --sim on the config's "
+                    "simulators behind the same drivers, in virtual time. The run is recorded to "
+                    "RUNS_DIR/<UTC time>_<procedure>.h5; Ctrl-Z pauses, Ctrl-C stops (instruments to their safe state).",
+        epilog=epilog("bench run procedures/startup_profile.yaml --config configs/sim.yaml --sim",
+                      "bench run procedures/thermal_ramp_ambient.yaml --config configs/lab.yaml -p cold=-20degC --unit SN0042",
+                      "bench run procedures/functional_test.yaml --config configs/sim.yaml --sim "
+                      "--answers procedures/answers/ci.yaml --inject-faults rate=6/h,seed=1",
+                      ok="the run completed: every step done, every check passed",
+                      failed="a check failed (the run went on to its end), or the run aborted (operator stop, instrument "
+                             "fault, interlock, full disk) after putting the instruments in their safe state",
+                      bad="bad input (procedure, config, options, runs directory): one located line per problem; "
+                          "nothing moved"))
+    r.add_argument("procedure", type=Path, help="procedure YAML file (docs/procedures.md)")
+    r.add_argument("--config", type=Path, required=True, help="lab config YAML file: instruments, ports, limits, simulators (required)")
+    r.add_argument("--sim", action="store_true", help="simulated instruments behind the same drivers, in virtual time "
+                                                       "(default: real instruments unless the config says 'mode: sim')")
+    r.add_argument("--realtime", action="store_true", help="with --sim: run at wall-clock pace (default: virtual time, hours in seconds)")
     r.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run files go (default: runs/)")
     r.add_argument("--operator", default=None, help="operator name recorded in the run file (default: login name)")
-    r.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help="override a procedure parameter, e.g. -p cold=-20degC")
-    r.add_argument("--answers", type=Path, default=None, help="YAML file answering the procedure's operator prompts (id: yes)")
+    r.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help=PARAM_HELP)
+    r.add_argument("--answers", type=Path, default=None,
+                   help="YAML file answering the procedure's operator prompts (id: yes) (default: ask on the terminal)")
     r.add_argument("--inject-faults", metavar="SPEC", default=None,
-                   help="with --sim: inject faults through the simulators, e.g. 'rate=6/h,seed=1' or 'serial_unplug@300s' (docs/reliability.md)")
+                   help="with --sim: inject faults through the simulators: a rate per hour of run time and a seed, e.g. "
+                        "'rate=6/h,seed=1', or faults at run times, e.g. 'serial_unplug@300s' (docs/reliability.md)")
+    r.add_argument("--unit", metavar="SERIAL", default=None, help="serial number of the unit under test, recorded in the run file (docs/units-under-test.md)")
+    r.add_argument("--part", metavar="PN", default=None, help="part number of the unit under test")
+    r.add_argument("--revision", metavar="REV", default=None, help="revision of the unit under test")
+    r.add_argument("--station", metavar="NAME", default=None, help="test station name (default: the config's 'station:', else the host name)")
+    r.add_argument("--catalog", metavar="URL", default=None, help="catalogue of runs to record the run in (default: the config's 'catalog:', else RUNS_DIR/catalog.sqlite; docs/catalog.md)")
+    r.add_argument("--accept-overdue-calibration", action="store_true",
+                   help="confirm a run on instruments past their config 'calibration_due' date without asking (recorded)")
+    r.add_argument("--json", action="store_true",
+                   help="print the run's result as one JSON object on stdout at the end; progress and the summary go to stderr "
+                        "(fields: docs/run-file.md)")
 
-    v = sub.add_parser("validate", help="check a procedure (and its limits against a lab config) without running it")
-    v.add_argument("procedure", type=Path)
-    v.add_argument("--config", type=Path, default=None, help="lab config: instrument names, drivers and this lab's limits")
-    v.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help="override a procedure parameter")
+    v = sub.add_parser(
+        "validate", help="check a procedure (and its limits against a lab config) without running it",
+        description="Check a procedure without running it: schema, units, parameters, loops and calls expanded, and with "
+                    "--config the instrument names, drivers and this lab's hardware limits. Prints the step count and "
+                    "the estimated procedure time.",
+        epilog=epilog("bench validate procedures/startup_profile.yaml",
+                      "bench validate procedures/thermal_ramp_ambient.yaml --config configs/lab.yaml -p cold=-20degC",
+                      ok="the procedure is valid", bad="invalid: one located line per problem (file:line:column: field: message)"))
+    v.add_argument("procedure", type=Path, help="procedure YAML file (docs/procedures.md)")
+    v.add_argument("--config", type=Path, default=None,
+                   help="lab config: instrument names, drivers and this lab's limits (default: the standard instrument names)")
+    v.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help=PARAM_HELP)
 
-    pl = sub.add_parser("plan", help="the expanded step list of a procedure with estimated durations")
-    pl.add_argument("procedure", type=Path)
-    pl.add_argument("--config", type=Path, default=None, help="lab config to validate against")
-    pl.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help="override a procedure parameter")
+    pl = sub.add_parser(
+        "plan", help="the expanded step list of a procedure with estimated durations",
+        description="Validate a procedure like 'bench validate' and print its expanded steps with what each does (in "
+                    "units), its estimated duration and start time (h:mm:ss of procedure time).",
+        epilog=epilog("bench plan procedures/thermal_ramp_ambient.yaml --config configs/lab.yaml",
+                      ok="the plan was printed", bad="invalid procedure or config: one located line per problem"))
+    pl.add_argument("procedure", type=Path, help="procedure YAML file (docs/procedures.md)")
+    pl.add_argument("--config", type=Path, default=None, help="lab config to validate against (default: the standard instrument names)")
+    pl.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help=PARAM_HELP)
 
-    w = sub.add_parser("watch", help="live view of a run in progress (reads the run file)")
-    w.add_argument("run_file", type=Path)
-    w.add_argument("--interval", default="1 s", help="refresh interval (default '1 s')")
+    w = sub.add_parser(
+        "watch", help="live view of a run in progress (reads the run file)",
+        description="Live view of a run in progress from another terminal: current step, latest readings, checks, "
+                    "events. Reads the run file only (SWMR); Ctrl-C leaves the run alone (docs/watch.md).",
+        epilog=epilog("bench watch runs/20261123T101500Z_thermal_ramp_ambient.h5",
+                      "bench watch RUN.h5 --once --interval 0.5s",
+                      ok="the run ended, Ctrl-C, or --once printed its snapshot", bad="not a run file, or a bad --interval"))
+    w.add_argument("run_file", type=Path, help="run file (.h5) being written by 'bench run' (or a finished one)")
+    w.add_argument("--interval", default="1 s", help="refresh interval, a duration: 500ms, 2 s; a bare number is s (default '1 s'; 0.05 s to 60 s)")
     w.add_argument("--once", action="store_true", help="print one snapshot and exit")
 
     from bench.replay.cli import add_replay_parser
 
     add_replay_parser(sub)
 
-    i = sub.add_parser("inspect", help="summarise a run file (also while it is being written)")
-    i.add_argument("run_file", type=Path)
-    i.add_argument("--events", type=int, default=40, help="how many of the last events to list (default 40)")
+    i = sub.add_parser(
+        "inspect", help="summarise a run file (also while it is being written)",
+        description="Summary of a run file: procedure, operator, unit, status (running, completed, aborted, crashed), "
+                    "instruments, steps and their outcomes, checks, streams (rows, rate, span) and the last events.",
+        epilog=epilog("bench inspect runs/20261123T101500Z_startup_profile.h5 --events 100",
+                      ok="the summary was printed, whatever the run's own status",
+                      bad="not a run file or unreadable (one line saying why)"))
+    i.add_argument("run_file", type=Path, help="run file (.h5) of 'bench run', 'bench import' or 'bench replay'")
+    i.add_argument("--events", type=int, default=40, help="how many of the last events to list (default 40; instrument traffic, "
+                                                          "command and reply events, is summarised per instrument, not listed)")
+    i.add_argument("--traffic", action="store_true", help="also list the command and reply events (default: summarised per instrument)")
+    i.add_argument("--json", action="store_true", help="print one JSON object instead of tables (fields: docs/run-file.md)")
 
-    c = sub.add_parser("calibrate-bench", help="fit the stepper bench speed calibration n = k(1/v - b) from rotation timings")
-    c.add_argument("timings", type=Path, help="CSV with columns n, rotation_time_s (repeated rows per n)")
-    c.add_argument("--resolution", default="0.01 s", help="stopwatch resolution (default '0.01 s', ESTCube-2 section 3.2.2)")
+    c = sub.add_parser(
+        "calibrate-bench", help="fit the stepper bench speed calibration n = k(1/v - b) from rotation timings",
+        description="Fit the stepper bench speed calibration n = k·(1/v − b) (ESTCube-2 Eq. 3.1; n: delay between "
+                    "microsteps in µs, v: stage rate in rad/s) from stopwatch timings of full rotations, with "
+                    "type A, B and combined uncertainties (docs/stepper-bench.md).",
+        epilog=epilog("bench calibrate-bench tests/data/estcube2_table_3_1.csv",
+                      "bench calibrate-bench timings.csv --resolution 0.1s --json",
+                      ok="the fit was printed", bad="bad CSV or --resolution (one located line per problem)"))
+    c.add_argument("timings", type=Path, help="CSV with columns n (microstep delay, µs) and rotation_time_s (s per revolution); repeated rows per n")
+    c.add_argument("--resolution", default="0.01 s", help="stopwatch resolution, a duration: 10ms; a bare number is s (default '0.01 s', ESTCube-2 section 3.2.2)")
     c.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
 
-    ic = sub.add_parser("instruments", help="instrument housekeeping")
+    ic = sub.add_parser("instruments", help="instrument housekeeping",
+                        description="Instrument housekeeping; 'bench instruments check' is the first command on a new bench.",
+                        epilog=epilog("bench instruments check --config configs/lab.yaml", ok="see 'bench instruments check --help'",
+                                      failed="see 'bench instruments check --help'"))
     icsub = ic.add_subparsers(dest="instruments_command", metavar="ACTION", parser_class=_Parser, required=True)
-    chk = icsub.add_parser("check", help="identify every instrument of a config and read one value from each")
-    chk.add_argument("--config", type=Path, required=True, help="lab config YAML file")
+    chk = icsub.add_parser(
+        "check", help="identify every instrument of a config and read one value from each",
+        description="Open every instrument of the config on its own port, identify it and read one value that changes "
+                    "nothing (no motion, no power, no set point). One line per instrument; a failure says what to do "
+                    "(serial permissions, port names, CAN bring-up, Modbus host/port, baud rate and wiring; docs/hardware.md).",
+        epilog=epilog("bench instruments check --config configs/lab.yaml", "bench instruments check --config configs/sim.yaml",
+                      ok="every instrument identified and answering",
+                      failed="at least one instrument could not be opened or did not answer (its line says what to do)",
+                      bad="bad config (one located line per problem)"))
+    chk.add_argument("--config", type=Path, required=True, help="lab config YAML file (required)")
     chk.add_argument("--sim", action="store_true", help="check the simulators behind the drivers (implied by 'mode: sim' in the config)")
 
+    lb = sub.add_parser("lab", help="set up a lab config", description="Lab config housekeeping.",
+                        epilog=epilog("bench lab init -o configs/lab.yaml", ok="see 'bench lab init --help'",
+                                      failed="see 'bench lab init --help'"))
+    lbsub = lb.add_subparsers(dest="lab_command", metavar="ACTION", parser_class=_Parser, required=True)
+    li = lbsub.add_parser(
+        "init", help="write a lab config skeleton from the serial ports and CAN interfaces of this computer",
+        description="Write a lab config skeleton: one instrument entry per serial port found (its description, "
+                    "VID:PID and stable /dev/serial/by-id path) and per CAN interface, the drivers to choose from, "
+                    "commented sim sections, and the station name. Choose each driver (delete ports that are no "
+                    "instrument), then run 'bench instruments check --config FILE' (docs/hardware.md).",
+        epilog=epilog("bench lab init -o configs/lab.yaml --station gyro-lab-2", "bench lab init -o - | less",
+                      ok="the skeleton was written", bad="the output exists (without --force) or cannot be written"))
+    li.add_argument("-o", "--output", type=Path, default=Path("lab.yaml"),
+                    help="config file to write, '-' for standard output (default: lab.yaml)")
+    li.add_argument("--station", default=None, help="station name recorded in every run file (default: the host name)")
+    add_force(li)
+
     from bench.cli_analysis import add_analysis_parsers
+    from bench.cli_catalog import add_catalog_parsers
 
     add_analysis_parsers(sub)
+    add_catalog_parsers(sub)
 
-    sk = sub.add_parser("soak", help="run the procedure library back to back on the simulated lab with random faults")
-    sk.add_argument("--config", type=Path, required=True, help="lab config YAML file (simulated lab)")
-    sk.add_argument("--hours", type=float, required=True, help="run time to soak for (h of virtual time)")
-    sk.add_argument("--faults-per-hour", type=float, default=3.0, help="mean injected faults per hour of run time (default 3)")
+    sk = sub.add_parser(
+        "soak", help="run the procedure library back to back on the simulated lab with random faults",
+        description="Run the procedure library back to back on the simulated lab, in virtual time, with faults injected "
+                    "at random (Poisson) times, and check that nothing crashed, every file is readable, no row was lost "
+                    "and every abort is explained (docs/reliability.md).",
+        epilog=epilog("bench soak --config configs/sim.yaml --duration 24h --faults-per-hour 3",
+                      "bench soak --config configs/sim.yaml --hours 0.5 --faults-per-hour 0.2/min --classes transient --json",
+                      ok="nothing crashed, no file is unreadable, no row was lost, every abort is explained",
+                      failed="a crash, an unreadable run file, lost rows or an unexplained abort (listed as problems)"))
+    sk.add_argument("--config", type=Path, required=True, help="lab config YAML file of a simulated lab (required)")
+    how_long = sk.add_mutually_exclusive_group(required=True)
+    how_long.add_argument("--duration", metavar="DURATION", help="run time to soak for, with units: 24h, 90min, 2 d (virtual time; a bare number is hours)")
+    how_long.add_argument("--hours", metavar="HOURS", help="run time to soak for in hours (virtual time); units are accepted too: 90min")
+    sk.add_argument("--faults-per-hour", metavar="RATE", default="3/h",
+                    help="mean injected faults per hour of run time; units are accepted: 0.1/min (default 3/h)")
     sk.add_argument("--seed", type=int, default=0, help="seed of the order, fault times, classes and parameters (default 0)")
     sk.add_argument("--runs-dir", type=Path, default=Path("runs/soak"), help="where the run files go (default: runs/soak/)")
     sk.add_argument("--procedures", type=Path, nargs="+", default=None,
@@ -95,11 +206,21 @@ def build_parser() -> argparse.ArgumentParser:
     sk.add_argument("--classes", default=None, help="fault classes to draw from, e.g. transient or serial_unplug+disk_full (default: all)")
     sk.add_argument("--json", action="store_true", help="print the report as JSON")
 
-    s = sub.add_parser("sim", help="simulated instruments")
+    s = sub.add_parser("sim", help="simulated instruments", description="Simulated instruments for other processes.",
+                       epilog=epilog("bench sim serve --config configs/sim.yaml", ok="see 'bench sim serve --help'",
+                                     failed="see 'bench sim serve --help'"))
     ssub = s.add_subparsers(dest="sim_command", metavar="SIMCOMMAND", parser_class=_Parser)
-    sv = ssub.add_parser("serve", help="serve the config's simulated serial instruments on pseudo-terminals")
-    sv.add_argument("--config", type=Path, required=True)
-    sv.add_argument("--instrument", action="append", help="only these instruments (repeatable)")
+    sv = ssub.add_parser(
+        "serve", help="serve the config's simulated instruments to other processes (pseudo-terminals, Modbus TCP, SLCAN)",
+        description="Serve the config's simulated instruments on the wall clock for other processes: serial ones on "
+                    "pseudo-terminals, the chamber controller on Modbus TCP, the rate table's CAN bus through a simulated "
+                    "SLCAN adapter, the logger as a SCPI socket. Prints every endpoint; Ctrl-C stops.",
+        epilog=epilog("bench sim serve --config configs/sim.yaml",
+                      "bench sim serve --config configs/sim.yaml --instrument tvac --instrument acs_board",
+                      ok="stopped with Ctrl-C or SIGTERM",
+                      bad="bad config, unknown --instrument, or its ports are taken (another 'bench sim serve'?)"))
+    sv.add_argument("--config", type=Path, required=True, help="lab config YAML file whose 'sim' sections are served (required)")
+    sv.add_argument("--instrument", action="append", help="only these instruments (repeatable; default: every one with a 'sim' section)")
     return p
 
 
@@ -110,6 +231,8 @@ def main(argv: list[str] | None = None) -> int:
         # drivers turn pymodbus's failures into typed errors; its own log lines would only repeat them
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
         logging.getLogger("can").setLevel(logging.CRITICAL)
+    from rich.console import Console
+
     console = Console(stderr=False, highlight=False)
     err = Console(stderr=True, highlight=False)
     try:
@@ -131,6 +254,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_calibrate_bench(args, console)
         if args.command == "instruments":
             return cmd_instruments_check(args, console)
+        if args.command == "lab":
+            return cmd_lab_init(args, console)
         if args.command in ("calibrate", "import", "report", "diagnose"):
             from bench import cli_analysis
 
@@ -141,6 +266,10 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_soak(args, console)
         if args.command == "sim" and args.sim_command == "serve":
             return cmd_sim_serve(args, console)
+        if args.command in ("runs", "catalog"):
+            from bench.cli_catalog import cmd_catalog
+
+            return cmd_catalog(args, console)
         parser.print_help()
         return EXIT_BAD_INPUT
     except InputErrors as exc:
@@ -176,8 +305,16 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     from bench.record import check_destination
     from bench.runner.operator import Operator
     from bench.runner.progress import RichProgress
+    from bench.cli_catalog import run_catalog
     from bench.runner.session import start_run
+    from bench.identity import utc_today
+    from bench.runner.unit_identity import check_confirmable, overdue_calibrations, run_identity
+    from rich.markup import escape
 
+    if args.json:  # stdout carries the JSON object only; everything for people goes to stderr
+        from rich.console import Console
+
+        console = Console(stderr=True, highlight=False)
     procedure, config = load_checked(args.procedure, args.config, parse_params(args.param))
     args.sim = args.sim or config.mode == "sim"
     if args.realtime and not args.sim:
@@ -188,6 +325,11 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     if unanswerable:
         raise InputErrors([InputError(f"prompt {s.params.get('id') or s.name!r} needs an operator: run on a terminal or give --answers FILE",
                                       s.location, "prompt") for s in unanswerable])
+    identity = run_identity(procedure, config, unit=args.unit, part=args.part, revision=args.revision, station=args.station)
+    overdue = overdue_calibrations(config, procedure.instruments, utc_today())
+    check_confirmable(overdue, operator, args.accept_overdue_calibration)
+    for o in overdue:
+        console.print(f"[bold yellow]warning:[/] {escape(o.describe())}", highlight=False)
     if args.sim:
         no_sim = [n for n in procedure.instruments if config.instruments[n].sim is None]
         if no_sim:
@@ -205,7 +347,8 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
 
     session = start_run(procedure, config, procedure_path=args.procedure, config_path=args.config, runs_dir=args.runs_dir,
                         sim=args.sim, realtime=args.realtime, operator=operator, progress=RichProgress(console),
-                        operator_name=args.operator, fault_spec=fault_spec)
+                        operator_name=args.operator, fault_spec=fault_spec, identity=identity, overdue=overdue,
+                        accept_overdue=args.accept_overdue_calibration, catalog=run_catalog(args.catalog, config))
     runner, lab, recorder = session.runner, session.lab, session.recorder
     state = {"signals": 0}
 
@@ -238,38 +381,48 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
             # after an operator stop the process is on its way out: further signals are ignored, even
             # during interpreter shutdown (which would otherwise die of them)
             signal.signal(s, signal.SIG_IGN if state["signals"] else h)
+    if session.catalog is not None:
+        session.catalog.run_ended()  # the closed file's row: status, verdict, hash (a failure only warns)
     for text in runner.notices:
         console.print(text)
     _print_summary(console, result, recorder.path, args.sim and not args.realtime)
-    return EXIT_OK if result.ok else EXIT_FAILED
+    _print_next_commands(console, recorder.path, sensor_data=any(result.rows.values()))
+    code = EXIT_OK if result.ok else EXIT_FAILED
+    if args.json:
+        import json
+
+        print(json.dumps({"run_file": str(recorder.path), "exit_code": code, **result.as_json()}, indent=2))
+    return code
 
 
 def _estimate_bytes(procedure) -> int:
-    """Rough run-file size: 38 float-ish values per sample at 1 kHz for the recording time, 8 B each."""
-    return int(procedure.estimated_duration_s() * 1000 * 20 * 8) + 1_000_000
+    """Rough run-file size (B) for the free-space check: streamed rows only while a step records
+    (``record``, or ``record:`` on a wait/vibration), as if at 1 kHz with 20 values of 8 B, plus
+    the polled instruments for the whole estimated run (5 instruments at 1 Hz, 10 values of 8 B)."""
+    est = procedure.estimate()
+    recording_s = sum(e.duration_s for step, e in zip(procedure.steps, est.steps)
+                      if step.type == "record" or step.params.get("record"))
+    return int(recording_s * 1000 * 20 * 8 + est.total_s * 5 * 10 * 8) + 1_000_000
 
 
 def _print_summary(console: Console, result, path: Path, virtual: bool) -> None:
-    colours = {"passed": "green", "done": "green", "failed": "red", "aborted": "red"}
-    t = Table(title="Steps", show_lines=False)
-    for col in ("#", "step", "type", "outcome", "detail"):
-        t.add_column(col)
-    for o in result.outcomes:
-        c = colours.get(o.outcome, "white")
-        t.add_row(str(o.index + 1), o.name, o.type, f"[{c}]{o.outcome}[/]", o.message)
-    console.print(t)
+    from rich.text import Text
+
+    from bench.termtable import fit_tables
+
+    colours = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "recorded": "blue"}
+    rows = [[str(o.index + 1), o.name, o.type, Text(o.outcome, colours.get(o.outcome, "white")), o.message] for o in result.outcomes]
+    for t in fit_tables(["#", "step", "type", "outcome", "detail"], rows, console.width, title="Steps", prose=[1, 4]):
+        console.print(t)
     for name, rows in result.rows.items():
         st = result.stream_stats.get(name, {})
         console.print(f"stream {name}: {rows} rows; link: {st.get('crc_errors', 0)} CRC errors, {st.get('dropped_frames', 0)} dropped frames, {st.get('garbage_bytes', 0)} garbage bytes")
     if result.checks:
-        ct = Table(title="Checks")
-        for col in ("check", "signal", "statistic", "window", "value", "limits", "outcome"):
-            ct.add_column(col)
-        for c in result.checks:
-            lim = f"[{'' if c['min'] is None else format(c['min'], 'g')}, {'' if c['max'] is None else format(c['max'], 'g')}]"
-            colour = "green" if c["outcome"] == "passed" else "red"
-            ct.add_row(c["name"], c["signal"], c["statistic"], c["window"], f"{c['value']:.6g}", lim, f"[{colour}]{c['outcome']}[/]")
-        console.print(ct)
+        rows = [[c["name"], c["signal"], c["statistic"], c["window"], "-" if c["value"] is None else f"{c['value']:.6g}", c["units"],
+                 c["limits"], Text(c["outcome"], colours.get(c["outcome"], "white"))] for c in result.as_json()["checks"]]
+        for ct in fit_tables(["check", "signal", "statistic", "window", "value", "units", "limits", "outcome"], rows, console.width,
+                             title="Checks", prose=[0]):
+            console.print(ct)
     speed = f", {result.run_time_s / max(result.wall_time_s, 1e-9):.0f}x real time" if virtual else ""
     console.print(f"run time {result.run_time_s:.1f} s in {result.wall_time_s:.2f} s wall{speed}")
     console.print(f"run file: {path}")
@@ -278,15 +431,35 @@ def _print_summary(console: Console, result, path: Path, virtual: bool) -> None:
     elif result.failed_steps:
         console.print(f"[bold red]FAILED[/]: {len(result.failed_steps)} step(s) failed: {', '.join(o.name for o in result.failed_steps)}")
     else:
-        console.print("[bold green]COMPLETED[/]: all steps done, all checks passed")
+        console.print(f"[bold green]COMPLETED[/]: all steps done; {result.verdict}")
+
+
+def next_commands(path: Path, *, sensor_data: bool) -> list[tuple[str, str]]:
+    """The commands worth running on a finished run file ``path``, each with what it gives:
+    inspect, report (next to the run, ``.html``), replay, and diagnose when the run recorded
+    sensor data (a stream with rows)."""
+    import shlex
+
+    run = shlex.quote(str(path))
+    out = [(f"bench inspect {run}", "summary: steps, checks, streams, events"),
+           (f"bench report {run} -o {shlex.quote(str(path.with_suffix('.html')))}", "HTML report for the acceptance record"),
+           (f"bench replay {run}", "re-run against the recorded instrument answers and compare")]
+    if sensor_data:
+        out.append((f"bench diagnose {run}", "what the sensor model misses"))
+    return out
+
+
+def _print_next_commands(console: Console, path: Path, *, sensor_data: bool) -> None:
+    console.print("next:", markup=False)
+    for command, what in next_commands(path, sensor_data=sensor_data):
+        console.print(f"  {command}  # {what}", markup=False, highlight=False, soft_wrap=True)
 
 
 # ---- watch ------------------------------------------------------------------------------------
 def cmd_watch(args: argparse.Namespace, console: Console) -> int:
-    from bench.units import to_units
     from bench.watch import watch
 
-    interval = to_units(args.interval, "s", None, "--interval")
+    interval = quantity(args.interval, "s", "--interval")
     if not 0.05 <= interval <= 60:
         raise InputError("the refresh interval must be between 0.05 s and 60 s", None, "--interval")
     return watch(args.run_file, console, interval_s=interval, once=args.once)
@@ -296,8 +469,17 @@ def cmd_watch(args: argparse.Namespace, console: Console) -> int:
 def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
     from bench.record import read_run_summary, render_summary
 
-    summary = read_run_summary(args.run_file)
-    render_summary(summary, console, max_events=args.events)
+    if args.events < 0:
+        raise InputError(f"expected a number of events >= 0, got {args.events}", None, "--events")
+    summary = read_run_summary(args.run_file, traffic=args.traffic)
+    if args.json:
+        import json
+
+        from bench.record.summary_json import summary_json
+
+        print(json.dumps(summary_json(summary, max_events=args.events), indent=2))
+        return EXIT_OK
+    render_summary(summary, console, max_events=args.events, traffic=args.traffic)
     return EXIT_OK
 
 
@@ -306,15 +488,16 @@ def cmd_calibrate_bench(args: argparse.Namespace, console: Console) -> int:
     import json
 
     from bench.analysis.bench_speed_fit import fit_timings_file
-    from bench.units import to_units
 
-    resolution = to_units(args.resolution, "s", None, "--resolution")
+    resolution = quantity(args.resolution, "s", "--resolution")
     if resolution < 0:
         raise InputError("the stopwatch resolution must be >= 0 s", None, "--resolution")
     fit = fit_timings_file(args.timings, resolution)
     if args.json:
         print(json.dumps(fit.as_json(), indent=2))
         return EXIT_OK
+    from rich.table import Table
+
     t = Table(title=f"Stepper bench speed calibration from {args.timings} ({fit.rows} timings)")
     for col in ("n", "repeats", "mean rotation time s", "std s", "speed deg/s", "fit speed deg/s"):
         t.add_column(col, justify="right")
@@ -333,23 +516,51 @@ def cmd_calibrate_bench(args: argparse.Namespace, console: Console) -> int:
 
 
 def cmd_instruments_check(args: argparse.Namespace, console: Console) -> int:
+    """One line per instrument: ``NAME: ok (identity; reading) [transport endpoint]`` or
+    ``NAME: PROBLEM [transport endpoint] → what to do``; exit 1 if any instrument failed."""
+    from rich.text import Text
+
     from bench.config import load_config
     from bench.instruments_check import check_instruments
 
     config = load_config(args.config)
     sim = args.sim or config.mode == "sim"
+    console.print(f"{config.name} ({'simulated' if sim else 'hardware'}), {len(config.instruments)} instrument(s):", markup=False)
     rows = check_instruments(config, sim=sim)
-    table = Table(title=f"{config.name} ({'simulated' if sim else 'hardware'})")
-    for col in ("instrument", "transport", "endpoint", "identity", "reading", "status"):
-        table.add_column(col, overflow="fold")
     for r in rows:
-        table.add_row(r.instrument, r.transport, r.endpoint, r.identity, r.reading, r.status if r.ok else f"[red]{r.status}[/red]")
-    console.print(table)
+        line = Text.assemble((r.instrument, "bold"), ": ", (r.status, "green" if r.ok else "red"))
+        if r.ok:
+            line.append(f" ({'; '.join(x for x in (r.identity, r.reading) if x)})")
+        line.append(f" [{r.transport}" + ("]" if r.endpoint in r.status else f" {r.endpoint}]"), "dim")
+        if r.hint:
+            line.append(f" → {r.hint}")
+        console.print(line, soft_wrap=True)
     bad = [r.instrument for r in rows if not r.ok]
     if bad:
-        console.print(f"{len(bad)} of {len(rows)} instrument(s) not responding: {', '.join(bad)}")
+        console.print(f"{len(bad)} of {len(rows)} instrument(s) not responding: {', '.join(bad)}", markup=False, soft_wrap=True)
         return EXIT_FAILED
-    console.print(f"all {len(rows)} instrument(s) identified and responding")
+    console.print(f"all {len(rows)} instrument(s) identified and responding", markup=False)
+    return EXIT_OK
+
+
+def cmd_lab_init(args: argparse.Namespace, console: Console) -> int:
+    """Write the lab config skeleton (:mod:`bench.lab_init`) to ``-o`` (``-`` for stdout)."""
+    from bench import instruments_check, lab_init
+    from bench.cli_common import check_output, output_file
+
+    to_stdout = str(args.output) == "-"
+    if not to_stdout:
+        check_output(args.output, "-o", force=args.force)
+    ports, cans = instruments_check.list_serial_ports(), lab_init.can_interfaces()
+    text = lab_init.skeleton(ports, cans, args.station if args.station is not None else lab_init.default_station())
+    if to_stdout:
+        sys.stdout.write(text)
+        return EXIT_OK
+    with output_file(args.output, "-o", force=args.force) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    found = f"{len(ports)} serial port(s), {len(cans)} CAN interface(s)"
+    console.print(f"wrote {args.output} ({found}); next: choose each driver in it, then", markup=False, soft_wrap=True)
+    console.print(f"  bench instruments check --config {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
 
 

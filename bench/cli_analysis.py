@@ -13,13 +13,15 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import yaml
-from rich.console import Console
-from rich.table import Table
+from typing import TYPE_CHECKING
 
 from bench import __version__
 from bench.analysis.progress import Progress
+from bench.cli_common import add_force, check_output, epilog, output_file
 from bench.errors import EXIT_OK, InputError
+
+if TYPE_CHECKING:  # rich, yaml and the analyses are imported where used: `bench --help` stays light
+    from rich.console import Console
 
 METHODS: dict[str, tuple[str, str]] = {
     "thermal": ("bench.analysis.thermal_cal", "calibrate"),
@@ -36,31 +38,71 @@ CALIBRATION_SCHEMA = "bench-calibration/1"
 
 def add_analysis_parsers(sub: argparse._SubParsersAction) -> None:
     """Add ``calibrate``, ``import``, ``report`` and ``diagnose`` to the CLI."""
-    c = sub.add_parser("calibrate", help="calibrate sensors from a run file or measured-data CSV (docs/calibration.md)")
-    c.add_argument("method", choices=list(METHODS), help="calibration method")
+    data_bad = "unreadable or unsuitable data, a bad option, or an output that exists (without --force)"
+    c = sub.add_parser(
+        "calibrate", help="calibrate sensors from a run file or measured-data CSV (docs/calibration.md)",
+        description="Calibrate sensors from a run file, a measured-data CSV (time_s, gyro_x_dps, temp_c, ...: units in "
+                    "the column names) or another program's HDF5/netCDF-4 file with --map. Methods: thermal (bias and "
+                    "scale factor vs temperature), rate-transfer (scale factor and bias from rate steps), two-level, "
+                    "gauss-newton (accelerometer/gyro 12-parameter fit), noise (Allan deviation: ARW, bias "
+                    "instability, RRW), moving-average (noise vs the board's averaging). docs/calibration.md.",
+        epilog=epilog("bench calibrate thermal runs/20261123T101500Z_thermal_ramp_ambient.h5 -o calibration.yaml",
+                      "bench calibrate noise data.csv --json",
+                      "bench calibrate gauss-newton DATA.nc --map accel=acceleration:m/s2 --map time=timestamp:s --sensor accel",
+                      ok="the calibration was computed (and written with -o)", bad=data_bad))
+    c.add_argument("method", choices=list(METHODS), help="calibration method: " + ", ".join(METHODS))
     c.add_argument("data", type=Path, help="run file (.h5), measured-data CSV, or HDF5/netCDF-4 file with --map")
     _add_map_option(c)
-    c.add_argument("--json", action="store_true", help="print the results as JSON")
-    c.add_argument("-o", "--output", type=Path, default=None, help="write the calibration YAML here (never overwrites)")
+    c.add_argument("--json", action="store_true", help="print the results as JSON (default: tables)")
+    c.add_argument("-o", "--output", type=Path, default=None,
+                   help="write the calibration YAML here (default: none; an existing file only with --force)")
     c.add_argument("--sensor", choices=["accel", "gyro"], default=None, help="gauss-newton: which sensor (default accel)")
     c.add_argument("--degree", type=int, default=None, help="thermal: polynomial degree (default 3, NPSAT1 Table 4)")
+    add_force(c)
 
-    i = sub.add_parser("import", help="turn a measured-data CSV or a mapped HDF5/netCDF-4 file into a run file (docs/analysis.md)")
+    i = sub.add_parser(
+        "import", help="turn a measured-data CSV or a mapped HDF5/netCDF-4 file into a run file (docs/analysis.md)",
+        description="Turn a measured-data CSV (time_s, gyro_x_dps, accel_x_g, temp_c, ...: units in the column names) "
+                    "or another program's HDF5/netCDF-4 file (with --map) into a run file that every analysis, "
+                    "'bench inspect' and 'bench report' read (docs/analysis.md).",
+        epilog=epilog("bench import data.csv -o imported.h5",
+                      "bench import DATA.nc --map gyro=angular_velocity[3:6]:rad/s --map time=timestamp:s -o imported.h5",
+                      ok="the run file was written", bad=data_bad))
     i.add_argument("csv", metavar="DATA", type=Path, help="measured-data CSV, or HDF5/netCDF-4 file with --map")
     _add_map_option(i)
-    i.add_argument("-o", "--output", type=Path, required=True, help="run file to write (never overwrites)")
+    i.add_argument("-o", "--output", type=Path, required=True, help="run file to write (required; an existing file only with --force)")
+    add_force(i)
 
-    r = sub.add_parser("report", help="self-contained HTML report of a run (docs/report.md)")
+    r = sub.add_parser(
+        "report", help="self-contained HTML report of a run (docs/report.md)",
+        description="Write one self-contained HTML page (figures inline) of a run: verdict and checks, unit, steps, "
+                    "instruments, temperatures and rates, and the analyses that apply (docs/report.md).",
+        epilog=epilog("bench report runs/20261123T101500Z_rate_transfer.h5 -o runs/20261123T101500Z_rate_transfer.html",
+                      "bench report RUN.h5 -o report.html --force",
+                      ok="the report was written", bad="not a readable run file, or the output exists (without --force)"))
     r.add_argument("run", type=Path, help="run file (.h5)")
-    r.add_argument("-o", "--output", type=Path, required=True, help="HTML file to write")
+    r.add_argument("-o", "--output", type=Path, required=True,
+                   help="HTML file to write (required; an existing file only with --force, never the run file)")
+    add_force(r)
 
-    d = sub.add_parser("diagnose", help="what the sensor model gets wrong, the physical cause, the gain (docs/diagnose.md)")
+    d = sub.add_parser(
+        "diagnose", help="what the sensor model gets wrong, the physical cause, the gain (docs/diagnose.md)",
+        description="Compare data with a sensor model and name what the model misses (thermal lag, hysteresis, "
+                    "g-sensitivity, warm-up, ...) with its gain, or say UNEXPLAINED where no term explains the "
+                    "structure left (docs/diagnose.md).",
+        epilog=epilog("bench diagnose runs/20261123T101500Z_thermal_ramp_ambient.h5",
+                      "bench diagnose data.csv --model configs/sensors/estcube_bmg160.yaml --json --report evidence.html -o extended.yaml",
+                      ok="the diagnosis was made (whatever it found)", bad=data_bad))
     d.add_argument("data", type=Path, help="run file (.h5), measured-data CSV, or HDF5/netCDF-4 file with --map")
     _add_map_option(d)
-    d.add_argument("--model", type=Path, default=None, help="sensor model YAML to start from (configs/sensors/NAME.yaml)")
-    d.add_argument("--json", action="store_true", help="print the findings as JSON")
-    d.add_argument("--report", type=Path, default=None, help="write an HTML page with the evidence")
-    d.add_argument("-o", "--output", type=Path, default=None, help="write the extended sensor model YAML (never overwrites)")
+    d.add_argument("--model", type=Path, default=None,
+                   help="sensor model YAML whose known terms join the baseline (configs/sensors/NAME.yaml or an earlier -o output; default: the baseline alone)")
+    d.add_argument("--json", action="store_true", help="print the findings as JSON (default: a summary)")
+    d.add_argument("--report", type=Path, default=None,
+                   help="write an HTML page with the evidence (default: none; an existing file only with --force)")
+    d.add_argument("-o", "--output", type=Path, default=None,
+                   help="write the extended sensor model YAML (default: none; an existing file only with --force)")
+    add_force(d)
 
 
 def _add_map_option(p: argparse.ArgumentParser) -> None:
@@ -74,31 +116,29 @@ def _load_data(args: argparse.Namespace):
     read (time source, dropped rows) goes to stderr, so ``--json`` output stays clean."""
     from bench.analysis.foreign import load_data
 
+    from rich.console import Console
+
     ds, notes = load_data(args.data, args.map)
     for note in notes:
         Console(stderr=True, highlight=False).print(f"note: {note}", markup=False, soft_wrap=True)
     return ds
 
 
-def _refuse_existing(path: Path | None, what: str) -> None:
-    if path is not None and path.exists():
-        raise InputError(f"{what} {path} exists; it is never overwritten (choose another name)", None, "-o")
-
-
 def _print_tables(console: Console, tables) -> None:
+    """The result tables, every value in full: columns that do not fit the console's width side by
+    side go to continuation tables that repeat the first column (``bench/termtable.py``)."""
+    from bench.termtable import fit_tables
+
     for t in tables:
-        table = Table(title=t.title)
-        for h in t.headers:
-            table.add_column(str(h))
-        for row in t.rows:
-            table.add_row(*[f"{c:.6g}" if isinstance(c, float) else ("" if c is None else str(c)) for c in row])
-        console.print(table)
+        rows = [[f"{c:.6g}" if isinstance(c, float) else ("" if c is None else str(c)) for c in row] for row in t.rows]
+        for table in fit_tables([str(h) for h in t.headers], rows, console.width, title=t.title):
+            console.print(table)
 
 
 def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
     from bench.replay.recording import file_sha256
 
-    _refuse_existing(args.output, "calibration file")
+    check_output(args.output, "-o", force=args.force, inputs=[args.data])
     module_name, func_name = METHODS[args.method]
     module = importlib.import_module(module_name)
     opts: dict[str, Any] = {}
@@ -135,7 +175,7 @@ def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
             "source": {"path": str(args.data), "sha256": file_sha256(args.data)},
             **result.calibration,
         }
-        _write_new(args.output, yaml.safe_dump(_plain_tree(doc), sort_keys=False))
+        _write_yaml(args.output, doc, args.force)
         _info_console(args, console).print(f"calibration written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
 
@@ -144,8 +184,9 @@ def cmd_import(args: argparse.Namespace, console: Console) -> int:
     from bench.analysis.foreign import load_notes
     from bench.analysis.importer import import_data
 
-    _refuse_existing(args.output, "run file")
-    ds = import_data(args.csv, args.output, args.map)
+    check_output(args.output, "-o", force=args.force, inputs=[args.csv])
+    with output_file(args.output, "-o", force=args.force) as tmp:
+        ds = import_data(args.csv, tmp, args.map)
     for note in load_notes(ds) if args.map else []:
         console.print(f"note: {note}", markup=False, soft_wrap=True)
     console.print(f"{len(ds)} rows of {args.csv} written to {args.output}", markup=False, soft_wrap=True)
@@ -155,9 +196,10 @@ def cmd_import(args: argparse.Namespace, console: Console) -> int:
 def cmd_report(args: argparse.Namespace, console: Console) -> int:
     from bench.report.run_report import write_report
 
-    with Progress("report") as say:
+    check_output(args.output, "-o", force=args.force, inputs=[args.run])
+    with Progress("report") as say, output_file(args.output, "-o", force=args.force) as tmp:
         say(f"writing {args.output} from {args.run}")
-        write_report(args.run, args.output)
+        write_report(args.run, tmp)
     console.print(f"report written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
 
@@ -165,7 +207,10 @@ def cmd_report(args: argparse.Namespace, console: Console) -> int:
 def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
     from bench.analysis.diagnose import diagnose, write_report
 
-    _refuse_existing(args.output, "model file")
+    for path, option in ((args.report, "--report"), (args.output, "-o")):
+        check_output(path, option, force=args.force, inputs=[args.data, args.model])
+    if args.report is not None and args.output is not None and args.report.resolve() == args.output.resolve():
+        raise InputError("--report and -o name the same file; give two names", None, "-o")
     info = _info_console(args, console)
     with Progress("diagnose") as say:
         say(f"reading {args.data}")
@@ -181,29 +226,30 @@ def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
     if hasattr(prepared, "rows_line"):
         info.print(prepared.rows_line(), markup=False, soft_wrap=True)
     if args.report is not None:
-        with Progress("diagnose") as say:
+        with Progress("diagnose") as say, output_file(args.report, "--report", force=args.force) as tmp:
             say(f"writing the report {args.report}")
-            write_report(result, ds, args.report)
+            write_report(result, ds, tmp)
         info.print(f"report written to {args.report}", markup=False, soft_wrap=True)
     if args.output is not None:
-        _write_new(args.output, yaml.safe_dump(_plain_tree(result.extended_model()), sort_keys=False))
+        _write_yaml(args.output, result.extended_model(), args.force)
         info.print(f"extended model written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
 
 
 def _info_console(args: argparse.Namespace, console: Console) -> Console:
     """Where "written to" lines go: with --json stderr (stdout carries the JSON), else ``console``."""
+    from rich.console import Console
+
     return Console(stderr=True, highlight=False) if getattr(args, "json", False) else console
 
 
-def _write_new(path: Path, text: str) -> None:
-    try:
-        with open(path, "x", encoding="utf-8") as fh:
-            fh.write(text)
-    except FileExistsError:
-        raise InputError(f"{path} exists; it is never overwritten", None, "-o") from None
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc.strerror or exc}", None, "-o") from None
+def _write_yaml(path: Path, doc: Any, force: bool) -> None:
+    """Write ``doc`` (numpy values as plain ones) as YAML to the ``-o`` file ``path``
+    (:func:`bench.cli_common.output_file`: an existing file is replaced only with ``force``)."""
+    import yaml
+
+    with output_file(path, "-o", force=force) as tmp:
+        tmp.write_text(yaml.safe_dump(_plain_tree(doc), sort_keys=False), encoding="utf-8")
 
 
 def _plain(v: Any) -> Any:

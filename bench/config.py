@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from datetime import date
 from pathlib import Path
 from typing import Any
 
 from bench.errors import InputError, InputErrors, Location
+from bench.identity import check_identity_text, parse_iso_date
 from bench.model.imu_simple import ImuModelParams
 from bench.sim.world import WorldParams
 from bench.units import to_units
@@ -86,6 +88,14 @@ class InstrumentConfig:
     compensation: Any = None
     """acs_board: gyro compensation (NPSAT1 Eq. 2) from the ``calibration:`` files
     (:class:`bench.model.compensation.Compensation`), or None."""
+    serial: str = ""
+    """The instrument's serial number as the lab knows it (config ``serial:``), ``""`` if not given."""
+    firmware: str = ""
+    """The firmware the lab expects on it (config ``firmware:``), ``""`` if not given."""
+    calibration_due: date | None = None
+    """Date (UTC) its calibration is due (config ``calibration_due: YYYY-MM-DD``), None if not given."""
+    calibration_due_location: Location | None = None
+    """Where ``calibration_due`` is written in the config (for messages about an overdue calibration)."""
 
 
 @dataclass
@@ -98,6 +108,12 @@ class LabConfig:
     flush_interval_s: float = 1.0
     mode: str = "hardware"
     """``sim``: the config describes a simulated lab; commands use its simulators without ``--sim``."""
+    station: str = ""
+    """Name of the test station (config ``station:``); ``""``: ``bench run`` records the host name."""
+    catalog: str = ""
+    """Catalogue of runs this station writes to (config ``catalog:``, a URL or file, docs/catalog.md);
+    ``""``: ``RUNS_DIR/catalog.sqlite``. Checked by ``bench run`` (``catalog_location`` for messages)."""
+    catalog_location: Location | None = None
 
     def kinds(self) -> dict[str, str]:
         """Instrument name -> driver."""
@@ -120,6 +136,8 @@ def load_config(path: str | Path) -> LabConfig:
     mode = top.get("mode", str, default="hardware")
     if mode not in ("hardware", "sim"):
         errors.append(InputError(f"expected 'hardware' or 'sim', got {mode!r}", top.map["mode"].location, "mode"))
+    station = _identity_text(top, "station", errors)
+    catalog = top.get("catalog", str, default="")
     world = _world(top.node_at("world"), errors)
     instruments: dict[str, InstrumentConfig] = {}
     inode = top.node_at("instruments")
@@ -143,7 +161,21 @@ def load_config(path: str | Path) -> LabConfig:
     top.check_unknown()
     if errors:
         raise InputErrors(errors)
-    return LabConfig(name, src.path, src.text, world, instruments, flush, mode)
+    return LabConfig(name, src.path, src.text, world, instruments, flush, mode, station, catalog,
+                     top.map["catalog"].location if catalog else None)
+
+
+def _identity_text(f: Fields, key: str, errors: list[InputError]) -> str:
+    """An optional identity text (station, serial, firmware): printable, at most 64 characters
+    (:func:`bench.identity.check_identity_text`); ``""`` when absent or bad (the error recorded)."""
+    node = f.node_at(key)
+    if node is None:
+        return ""
+    try:
+        return check_identity_text(node.value, node.location, key)
+    except InputError as exc:
+        errors.append(exc)
+        return ""
 
 
 def _quantity(node: Node, units: str, fname: str, errors: list[InputError], default: float) -> float:
@@ -218,11 +250,21 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
         if not 0 <= reconnect <= 3600:
             errors.append(InputError("expected a reconnect timeout between 0 s (abort at once) and 1 h", n.location, "reconnect_timeout"))
     compensation = _compensation(driver, f.node_at("calibration"), base, errors)
+    serial = _identity_text(f, "serial", errors)
+    firmware = _identity_text(f, "firmware", errors)
+    due: date | None = None
+    due_node = f.node_at("calibration_due")
+    if due_node is not None:
+        try:
+            due = parse_iso_date(due_node.value, due_node.location, "calibration_due")
+        except InputError as exc:
+            errors.append(exc)
     f.check_unknown()
     if len(errors) > before:
         return None
     return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
-                            channels, tc_type, poll, limits, reconnect, compensation)
+                            channels, tc_type, poll, limits, reconnect, compensation, serial=serial, firmware=firmware,
+                            calibration_due=due, calibration_due_location=due_node.location if due_node is not None else None)
 
 
 def _compensation(driver: str | None, node: Node | None, base: Path, errors: list[InputError]) -> Any:

@@ -142,6 +142,8 @@ def soak(config_path: Path, hours: float, faults_per_hour: float, seed: int, run
                 result = session.runner.run()
             finally:
                 session.lab.close()
+            if session.catalog is not None:
+                session.catalog.run_ended()  # the run's catalogue row (a failure only warns)
             entry.update(status=result.status, abort_reason=result.abort_reason, run_time_s=result.run_time_s)
         except Exception as exc:  # noqa: BLE001 - a crash is what the soak is looking for
             report.crashes += 1

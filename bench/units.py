@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import re
+from pathlib import Path
 from typing import Any
 
 import pint
@@ -25,10 +27,30 @@ TEMPERATURE_DIFFERENCE = "delta_degC"
 
 @functools.lru_cache(maxsize=1)
 def registry() -> pint.UnitRegistry:
-    """The one pint registry of the application (offset units like degC allowed as plain values)."""
-    ureg = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
+    """The one pint registry of the application (offset units like degC allowed as plain values).
+
+    pint's parsed unit definitions are cached in :func:`unit_cache_dir` (pint's own disk cache,
+    named by the definition file's content, pint's and Python's versions): building the registry
+    then takes ~25 ms instead of ~350 ms, which is most of a ``bench validate``. A cache that
+    cannot be used (read-only home, a damaged file) is removed where possible and the registry is
+    built without it.
+    """
+    try:
+        ureg = pint.UnitRegistry(autoconvert_offset_to_baseunit=True, cache_folder=unit_cache_dir())
+    except Exception:  # noqa: BLE001 - the cache is an optimisation: any failure means "build it again"
+        import shutil
+
+        shutil.rmtree(unit_cache_dir(), ignore_errors=True)
+        ureg = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
     ureg.define("Torr = atm / 760")  # vacuum gauges report Torr; pint only knows 'torr'
     return ureg
+
+
+def unit_cache_dir() -> Path:
+    """Where pint's parsed definitions are cached: ``$XDG_CACHE_HOME/bench/pint`` (default
+    ``~/.cache/bench/pint``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "bench" / "pint"
 
 
 def to_units(value: Any, units: str, location: Location | None = None, field: str | None = None) -> float:

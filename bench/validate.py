@@ -8,6 +8,7 @@ from pathlib import Path
 from bench.config import LabConfig, load_config
 from bench.errors import InputError, InputErrors, Location
 from bench.procedure import Procedure, load_procedure
+from bench.procedure.estimate import LabModel
 
 
 def load_checked(procedure_path: Path, config_path: Path | None, params: dict[str, str]) -> tuple[Procedure, LabConfig | None]:
@@ -25,3 +26,12 @@ def load_checked(procedure_path: Path, config_path: Path | None, params: dict[st
                 for n in missing
             ])
     return procedure, config
+
+
+def lab_model(config: LabConfig | None) -> LabModel:
+    """What the estimates of ``bench plan`` and ``bench validate`` know of the lab of ``config``: its
+    ambient temperature, the chamber model of its world, its instrument drivers (without a config:
+    the model's defaults and the standard instrument names)."""
+    if config is None:
+        return LabModel()
+    return LabModel(ambient_c=config.world.ambient_temp_c, chamber=config.world.chamber, kinds=config.kinds())

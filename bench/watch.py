@@ -14,9 +14,11 @@ See ``docs/watch.md``.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +36,8 @@ from bench.record import layout
 from bench.record.reader import (
     STALE_AFTER_S,
     EventRow,
+    PendingPrompt,
+    TrafficSummary,
     _checked_rows,
     _column_order,
     _iso,
@@ -45,6 +49,7 @@ from bench.record.reader import (
     _units,
     event_datasets,
     event_row,
+    format_run_time,
     read_heartbeat,
     step_outcome,
 )
@@ -66,6 +71,7 @@ READ_RETRY_S = 15.0
 FINAL_STATUSES = layout.STATUSES_FINAL
 STATUS_STALE = "stale"
 """Never stored: what watch shows for a ``running`` file whose heartbeat is stale (probably crashed)."""
+_LIVE = (layout.STATUS_RUNNING, layout.STATUS_WAITING)
 HIDDEN_COLUMNS = ("counter", "board_time")
 """Bookkeeping columns of the sensor board; read but not listed as readings (rows and rate are)."""
 SPARK_CHARS = "▁▂▃▄▅▆▇█"
@@ -74,8 +80,14 @@ _EVENT_BLOCK = 16384  # events read per block when scanning for steps
 _BLOB_SPAN = 4 * 1024 * 1024  # blob bytes read at once when the wanted messages lie this close together
 _TAIL_ROWS = 64  # rows read at the end of `time` to find the last complete row
 _STEP_KINDS = tuple(k.encode("ascii") for k in layout.STEP_EVENT_KINDS)
+_PICKED_KINDS = tuple(dict.fromkeys(_STEP_KINDS + tuple(k.encode("ascii") for k in (layout.EVENT_PROMPT, *layout.PROMPT_CLOSING_KINDS))))
+"""Events whose messages the tracker reads: the step events, operator prompts and what answers them."""
+_TRAFFIC_KINDS = tuple(k.encode("ascii") for k in layout.TRAFFIC_EVENT_KINDS)
 _RUN_START = layout.EVENT_RUN_START.encode("ascii")
 _STEP_START = layout.EVENT_STEP_START.encode("ascii")
+_STEP_END = layout.EVENT_STEP_END.encode("ascii")
+_PROMPT = layout.EVENT_PROMPT.encode("ascii")
+_COMMAND = b"command"
 _WAIT_REASONS = ("recording had not started", "locked by the process writing it", "the file is empty")
 
 
@@ -135,7 +147,9 @@ class StreamState:
 class WatchState:
     """What one read of a run file shows. ``status`` is the file's status, except that a
     ``running`` file whose heartbeat is ``stale_after_s`` or older reads ``stale`` (its writer has
-    probably crashed). ``run_time_s`` is how far the run has got (s)."""
+    probably crashed), and one that waits for the operator's answer reads ``waiting``.
+    ``run_time_s`` is how far the run has got (s). ``events`` are the last events other than
+    instrument traffic, which ``traffic`` summarises."""
 
     path: Path
     procedure: str
@@ -158,6 +172,12 @@ class WatchState:
     warnings: list[str] = field(default_factory=list)
     read_error: str = ""
     read_at_unix: float = 0.0
+    waiting_for: PendingPrompt | None = None
+    """The operator prompt the run waits on (status ``waiting``), else None."""
+    traffic: list[TrafficSummary] = field(default_factory=list)
+    """Instrument traffic (``command``/``reply`` events) per instrument; ``events`` leaves it out."""
+    events_meaningful: int = 0
+    """Events other than instrument traffic (``events_total`` counts every event)."""
 
     @property
     def final(self) -> bool:
@@ -187,42 +207,81 @@ class WatchState:
 
 
 class StepTracker:
-    """The step list, built from ``/events`` incrementally: each call reads only the events added
-    since the previous one. :func:`watch` keeps one across refreshes; :func:`snapshot` makes a
-    fresh one (reading every event once, in blocks, looking only at step events) if none is given."""
+    """What the whole event log says, built incrementally: each call reads only the events added
+    since the previous one. The step list (from the step events), the operator prompt a live run
+    waits on, the instrument traffic per instrument (``command``/``reply`` events, counted) and the
+    positions of the last ``keep`` other events. :func:`watch` keeps one across refreshes;
+    :func:`snapshot` makes a fresh one (reading every event once, in blocks, decoding only the
+    step and prompt events) if none is given."""
 
-    def __init__(self) -> None:
+    def __init__(self, keep: int = MAX_EVENTS) -> None:
+        self.keep = keep
         self.scanned = 0  # events consumed so far
         self.steps: dict[int, StepState] = {}
         self.total: int | None = None
+        self.prompt: PendingPrompt | None = None
+        """The last ``prompt`` event while no answer, step end, abort or end of run followed it."""
+        self.traffic: dict[str, TrafficSummary] = {}
+        """Instrument -> its command and reply events so far (``polls`` filled in by :func:`snapshot`)."""
+        self.recent: deque[int] = deque(maxlen=max(keep, 0))
+        """Row numbers of the last ``keep`` events other than instrument traffic."""
+        self.meaningful = 0
+        """Events other than instrument traffic so far."""
 
     def update(self, events: h5py.Dataset, blob: h5py.Dataset, rows: int, blob_len: int) -> None:
         if rows < self.scanned:  # another file under the same name: start over
-            self.__init__()
+            self.__init__(self.keep)
         while self.scanned < rows:
             stop = min(rows, self.scanned + _EVENT_BLOCK)
             block = events[self.scanned : stop]
             kinds = block["kind"]
             empty = np.flatnonzero(kinds == b"")
             usable = int(empty[0]) if empty.size else len(block)  # rows the writer has not filled in yet
-            picked = np.flatnonzero(np.isin(kinds[:usable], _STEP_KINDS))
+            picked = np.flatnonzero(np.isin(kinds[:usable], _PICKED_KINDS))
             ends = block["msg_off"][picked].astype(np.int64) + block["msg_len"][picked].astype(np.int64)
+            ends += np.where(kinds[picked] == _PROMPT, block["data_len"][picked].astype(np.int64), 0)  # prompt data follows its message
             short = np.flatnonzero(ends > blob_len)
             if short.size:  # message not visible yet: stop before it, read it next time
                 usable = int(picked[short[0]])
                 picked = picked[: short[0]]
             messages = _read_messages(blob, blob_len, [(int(block["msg_off"][i]), int(block["msg_len"][i])) for i in picked])
+            prompts = [i for i in picked if kinds[i] == _PROMPT]
+            data = dict(zip(prompts, _read_messages(blob, blob_len, [(int(block["data_off"][i]), int(block["data_len"][i])) for i in prompts])))
             for i, msg in zip(picked, messages):
-                self._apply(block[i], msg)
+                self._apply(block[i], msg, data.get(i, ""))
+            self._count(block[:usable], self.scanned)
             self.scanned += usable
             if usable < len(block):
                 break
 
-    def _apply(self, row: np.void, message: str) -> None:
+    def _count(self, block: np.ndarray, first: int) -> None:
+        """Traffic per instrument and the positions of the other events, for ``block`` (rows from ``first``)."""
+        traffic = np.isin(block["kind"], _TRAFFIC_KINDS)
+        sel = block[traffic]
+        for src in np.unique(sel["source"]):
+            mine = sel[sel["source"] == src]
+            name = bytes(src).decode("utf-8", errors="replace")
+            tr = self.traffic.setdefault(name, TrafficSummary(name))
+            commands = int(np.count_nonzero(mine["kind"] == _COMMAND))
+            tr.commands += commands
+            tr.replies += len(mine) - commands
+            t0, t1 = float(mine["t_s"].min()), float(mine["t_s"].max())
+            tr.t_first_s = t0 if tr.t_first_s is None else min(tr.t_first_s, t0)
+            tr.t_last_s = t1 if tr.t_last_s is None else max(tr.t_last_s, t1)
+        others = np.flatnonzero(~traffic)
+        self.meaningful += len(others)
+        if self.recent.maxlen:
+            self.recent.extend(first + int(i) for i in others[-self.recent.maxlen:])
+
+    def _apply(self, row: np.void, message: str, data: str) -> None:
         kind = bytes(row["kind"])
         idx = int(row["step"])
         source = bytes(row["source"]).decode("utf-8", errors="replace")
         t = float(row["t_s"])
+        if kind == _PROMPT:
+            self.prompt = _pending(message, data, t, float(row["wall_unix"]), idx)
+        elif kind not in _STEP_KINDS or kind == _STEP_END:
+            self.prompt = None  # answered, step over, aborted or ended
         if kind == _RUN_START:
             m = re.search(r"(\d+) steps?\b", message)
             if m:
@@ -230,12 +289,23 @@ class StepTracker:
         elif kind == _STEP_START:
             self.steps.pop(idx, None)  # a repeated index replaces the earlier entry, at the end
             self.steps[idx] = StepState(idx, message, source, t)
-        else:
+        elif kind == _STEP_END:
             s = self.steps.get(idx)
             if s is None:
                 s = self.steps[idx] = StepState(idx, "", source, None)
             s.outcome, s.detail = step_outcome(message)
             s.t_end_s = t
+
+
+def _pending(message: str, data: str, t_s: float, wall_unix: float, step: int) -> PendingPrompt:
+    """The :class:`PendingPrompt` of a ``prompt`` event (data: JSON with ``id`` and ``attempt``)."""
+    try:
+        info = json.loads(data) if data else {}
+    except json.JSONDecodeError:
+        info = {}
+    info = info if isinstance(info, dict) else {}
+    attempt = info.get("attempt", 1)
+    return PendingPrompt(message, str(info.get("id", "")), attempt if isinstance(attempt, int) else 1, t_s, wall_unix, step)
 
 
 # ---- reading ------------------------------------------------------------------------------------
@@ -251,13 +321,15 @@ def snapshot(
 ) -> WatchState:
     """Read the run file at ``path`` once (complete, aborted, crashed or being written).
 
-    ``stale_after_s`` (s of wall time): heartbeat age from which a ``running`` file reads ``stale``.
+    ``stale_after_s`` (s of wall time): heartbeat age from which a ``running`` file reads ``stale``;
+    a live run whose last operator prompt is not answered yet reads ``waiting``.
     ``trend_window_s`` (s of run time) and ``trend_points``: each signal's trend. ``max_events``:
-    how many of the last events to return. ``tracker`` carries the step list between calls (only
-    new events are read). Raises :class:`InputError` if the file is not a readable bench run file.
+    how many of the last events other than instrument traffic to return (at most the tracker's
+    ``keep``). ``tracker`` carries the step list, prompt and traffic between calls (only new events
+    are read). Raises :class:`InputError` if the file is not a readable bench run file.
     """
     path = Path(path)
-    tracker = tracker if tracker is not None else StepTracker()
+    tracker = tracker if tracker is not None else StepTracker(keep=max_events)
     with _open_run(path) as (f, warnings):
         now = time.time() if now_unix is None else now_unix
         limit = _size_limit(path)
@@ -269,7 +341,7 @@ def snapshot(
         n_events = _checked_rows(events_ds, limit)
         blob_len = _checked_rows(blob_ds, limit)
         tracker.update(events_ds, blob_ds, n_events, blob_len)
-        events = _last_events(events_ds, blob_ds, n_events, blob_len, max_events)
+        events = _events_at(events_ds, blob_ds, blob_len, list(tracker.recent)[-max_events:] if max_events > 0 else [])
 
         streams = [
             _read_stream_tail(key, g, limit, trend_window_s, trend_points) for key, g in _stream_groups(f).items()
@@ -286,14 +358,21 @@ def snapshot(
             detail = f"no heartbeat for {age:.0f} s (since {_iso(hb_unix)}); the writer has probably crashed"
         else:
             detail = f"heartbeat {max(age, 0.0):.1f} s ago"
+            if tracker.prompt is not None:
+                status = layout.STATUS_WAITING
+                asked = max(now - tracker.prompt.wall_unix, 0.0)
+                detail = f"waiting for operator: {tracker.prompt.text} (asked {asked:.0f} s ago); {detail}"
     elif status in FINAL_STATUSES:
         detail = f"ended {attrs.get(layout.ATTR_ENDED_UTC, '') or '?'}"
-    times = [hb_run] + [e.t_s for e in events] + [s.t_last_s for s in streams if s.t_last_s is not None]
+    polls = {s.key: s.rows for s in streams}
+    traffic = [TrafficSummary(**{**vars(t), "polls": polls.get(layout.monitor_key(t.instrument), 0)}) for t in tracker.traffic.values()]
+    times = [hb_run] + [e.t_s for e in events] + [s.t_last_s for s in streams if s.t_last_s is not None] + \
+        [t.t_last_s for t in traffic if t.t_last_s is not None]
     times = [t for t in times if math.isfinite(t)]
     steps = [StepState(**vars(s)) for s in tracker.steps.values()]  # copies: the tracker keeps its own
     running = [s for s in steps if s.outcome == "running"]
     current = running[-1] if running else None
-    if status != layout.STATUS_RUNNING:  # a step left open by a closed or crashed run did not finish
+    if status not in _LIVE:  # a step left open by a closed or crashed run did not finish
         for s in running:
             s.outcome = "interrupted"
         current = None
@@ -315,6 +394,9 @@ def snapshot(
         events=events,
         events_total=n_events,
         streams=streams,
+        waiting_for=tracker.prompt if status == layout.STATUS_WAITING else None,
+        traffic=traffic,
+        events_meaningful=tracker.meaningful,
         trend_window_s=trend_window_s,
         warnings=list(warnings),
         read_at_unix=now,
@@ -337,10 +419,11 @@ def _read_messages(blob: h5py.Dataset, blob_len: int, ranges: list[tuple[int, in
     return [r.decode("utf-8", errors="replace") for r in raw]
 
 
-def _last_events(events: h5py.Dataset, blob: h5py.Dataset, rows: int, blob_len: int, count: int) -> list[EventRow]:
-    if count <= 0 or rows == 0:
+def _events_at(events: h5py.Dataset, blob: h5py.Dataset, blob_len: int, rows: list[int]) -> list[EventRow]:
+    """The events at row numbers ``rows`` (ascending), with their messages and data as far as visible."""
+    if not rows:
         return []
-    block = events[max(0, rows - count) : rows]
+    block = events[rows]
     block = block[block["kind"] != b""]  # rows extended but not written yet
     msgs = _read_messages(blob, blob_len, [(int(r["msg_off"]), int(r["msg_len"])) for r in block])
     data = [(int(r["data_off"]), int(r["data_len"])) for r in block]
@@ -462,30 +545,35 @@ def format_value(value: float, integer: bool = False, name: str = "") -> str:
     return f"{value:.5g}"
 
 
-def format_run_time(seconds: float) -> str:
-    """``h:mm:ss`` of a run time (s)."""
-    if not math.isfinite(seconds) or seconds < 0:
-        return "-"
-    s = int(seconds)
-    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
-
-
 _STATUS_STYLE = {
     layout.STATUS_RUNNING: "bold black on cyan", layout.STATUS_COMPLETED: "bold black on green",
     layout.STATUS_ABORTED: "bold white on red", layout.STATUS_FAILED: "bold white on red", STATUS_STALE: "bold black on yellow",
+    layout.STATUS_WAITING: "bold white on magenta",
 }
-_OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan"}
+_OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan",
+                  layout.OUTCOME_RECORDED: "blue"}
+PANEL_CHROME = 4
+"""Columns the panel takes around its content (border and padding, 2 each side)."""
+COLUMN_GAP = 3
+"""Blank columns between two columns of the readings table: 1 of padding each side and the (blank) divider."""
+MIN_TREND_CHARS = 10
+"""Narrowest trend worth showing next to min and max (characters); narrower drops min and max first."""
+DEFAULT_WIDTH = 120
+"""Width (characters) :func:`build` lays out for when none is given."""
 
 
-def build(state: WatchState) -> RenderableType:
-    """The view of ``state`` as one rich renderable (used by :func:`render` and the live display)."""
+def build(state: WatchState, width: int | None = None) -> RenderableType:
+    """The view of ``state`` as one rich renderable for a terminal ``width`` characters wide (used
+    by :func:`render` and the live display). Every reading keeps its value and units whole; the
+    trend gets the columns left over (min and max go first on a narrow terminal)."""
+    width = width or DEFAULT_WIDTH
     head = Text()
     head.append(f" {state.status.upper()} ", style=_STATUS_STYLE.get(state.status, "bold reverse"))
     head.append(f"  {state.procedure}", style="bold")
     head.append(f"   run time {format_run_time(state.run_time_s)} ({state.run_time_s:.1f} s)")
     if state.mode:
         head.append(f"   mode {state.mode}", style="dim")
-    detail = Text(state.status_detail, style="red" if state.status == STATUS_STALE else "dim")
+    detail = Text(state.status_detail, style={STATUS_STALE: "red", layout.STATUS_WAITING: "bold magenta"}.get(state.status, "dim"))
     if state.abort_reason:
         detail.append(f"   abort reason: {state.abort_reason}", style="red")
     parts: list[RenderableType] = [head, detail, _step_line(state)]
@@ -493,15 +581,18 @@ def build(state: WatchState) -> RenderableType:
         parts.append(Text(f"warning: {w}", style="yellow"))
     if state.read_error:
         parts.append(Text(f"refresh failed, showing the last good read: {state.read_error}", style="yellow"))
-    parts.append(_readings_table(state))
+    parts.extend(_readings(state, width - PANEL_CHROME))
     parts.append(_events_table(state))
+    if state.traffic:
+        parts.append(Text("instrument traffic (kept for replay): " + "; ".join(t.describe() for t in state.traffic), style="dim"))
     title = f"bench watch [dim]{state.path.name}[/]"
-    return Panel(Group(*parts), title=title, title_align="left", box=box.ROUNDED, padding=(0, 1))
+    return Panel(Group(*parts), title=title, title_align="left", box=box.ROUNDED, padding=(0, 1), width=width)
 
 
 def render(state: WatchState, console: Console) -> None:
-    """Print the view of ``state``: status and run time, current step, key readings with trends, last events."""
-    console.print(build(state))
+    """Print the view of ``state`` for the console's width: status and run time, current step, key
+    readings with trends, last events, instrument traffic."""
+    console.print(build(state, console.width))
 
 
 def _step_line(state: WatchState) -> Text:
@@ -516,7 +607,7 @@ def _step_line(state: WatchState) -> Text:
             t.append(f"  started at {cur.t_start_s:.1f} s, running {max(state.run_time_s - cur.t_start_s, 0.0):.1f} s")
     elif state.steps:
         last = state.steps[-1]
-        t.append("last step  " if state.status != layout.STATUS_RUNNING else "between steps; last  ", style="bold")
+        t.append("last step  " if state.status not in _LIVE else "between steps; last  ", style="bold")
         t.append(f"{last.index + 1}{total} {last.name} ")
         t.append(last.outcome, style=_OUTCOME_STYLE.get(last.outcome, ""))
         if last.detail:
@@ -532,55 +623,110 @@ def _step_line(state: WatchState) -> Text:
     return t
 
 
-def _readings_table(state: WatchState) -> Table:
-    window = f"trend, last {state.trend_window_s / 60:g} min" if state.trend_window_s >= 60 else f"trend, last {state.trend_window_s:g} s"
-    t = Table(box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False, expand=False)
-    t.add_column("reading", no_wrap=True, min_width=14)
-    t.add_column("value", justify="right", no_wrap=True, min_width=10)
-    t.add_column("units", no_wrap=True)
-    t.add_column(window, no_wrap=True, min_width=TREND_POINTS)
-    t.add_column("min", justify="right", no_wrap=True)
-    t.add_column("max", justify="right", no_wrap=True)
+def resample(values: np.ndarray, points: int) -> np.ndarray:
+    """``values`` in ``points`` bins (each the mean of its finite values, NaN if none); unchanged
+    when it has no more than ``points`` values."""
+    v = np.asarray(values, dtype=np.float64)
+    if points <= 0:
+        return v[:0]
+    if v.size <= points:
+        return v
+    out = np.full(points, np.nan)
+    for i, chunk in enumerate(np.array_split(v, points)):
+        finite = chunk[np.isfinite(chunk)]
+        if finite.size:
+            out[i] = finite.mean()
+    return out
+
+
+@dataclass
+class _Row:
+    """One reading as text: label, value, units, min, max, and its trend."""
+
+    label: str
+    value: str
+    units: str
+    lo: str
+    hi: str
+    trend: np.ndarray
+
+
+def _reading_rows(stream: StreamState) -> list[_Row]:
+    rows = []
+    prev = ""
+    for sig in stream.signals:
+        label = sig.label if sig.column != prev else f"{' ' * len(sig.column)} {sig.component}"
+        prev = sig.column
+        lo = format_value(sig.trend_min, sig.integer, sig.column) if math.isfinite(sig.trend_min) else ""
+        hi = format_value(sig.trend_max, sig.integer, sig.column) if math.isfinite(sig.trend_max) else ""
+        rows.append(_Row(label, format_value(sig.value, sig.integer, sig.column), sig.units if sig.units != "1" else "", lo, hi, sig.trend))
+    return rows
+
+
+def _readings(state: WatchState, width: int) -> list[RenderableType]:
+    """Per stream a header line (key, rows, rate, last row) and a table of its signals, all tables
+    with the same column widths: label, value and units whole, then the trend in what is left of
+    ``width`` (characters), min and max only when the trend still gets :data:`MIN_TREND_CHARS`."""
     if not state.streams:
-        t.add_row(Text("no streams", style="dim"), "", "", "", "", "")
-    for i, s in enumerate(state.streams):
-        if i:
-            t.add_section()
-        rows = Text(f"{s.rows:,} rows", style="dim")
-        rate = Text(f"{s.rate_hz:.4g} Hz" if s.rate_hz is not None else "", style="dim")
+        return [Text("no streams", style="dim")]
+    by_stream = [(s, _reading_rows(s)) for s in state.streams]
+    rows = [r for _, rs in by_stream for r in rs]
+    window = f"{state.trend_window_s / 60:g} min" if state.trend_window_s >= 60 else f"{state.trend_window_s:g} s"
+    w = {name: max([len(head)] + [len(getattr(r, name)) for r in rows])
+         for name, head in (("label", "reading"), ("value", "value"), ("units", "units"), ("lo", "min"), ("hi", "max"))}
+    fixed = w["label"] + w["value"] + w["units"] + 2 * COLUMN_GAP
+    trend = width - fixed - COLUMN_GAP - (w["lo"] + w["hi"] + 2 * COLUMN_GAP)
+    extremes = trend >= MIN_TREND_CHARS
+    if not extremes:
+        trend = width - fixed - COLUMN_GAP
+    trend = min(trend, TREND_POINTS)
+    trend_head = next((h for h in (f"trend, last {window}", f"last {window}", "trend") if len(h) <= trend), "")
+    out: list[RenderableType] = []
+    for i, (s, rs) in enumerate(by_stream):
+        head = Text(("\n" if i else "") + s.key, style="bold")
+        head.append(f"  {s.rows:,} rows", style="dim")
+        if s.rate_hz is not None:
+            head.append(f"  {s.rate_hz:.4g} Hz", style="dim")
         if s.rows == 0 or s.t_last_s is None:
-            info = "no rows yet"
+            head.append("  no rows yet", style="dim")
         else:
             lag = state.run_time_s - s.t_last_s
-            info = f"last row {s.t_last_s:.1f} s" + (f", {lag:.1f} s behind" if lag >= 0.05 else "")
+            info = f"  last row {s.t_last_s:.1f} s" + (f", {lag:.1f} s behind" if lag >= 0.05 else "")
             if s.trend_span_s < 0.95 * state.trend_window_s:
                 info += f", trend {s.trend_span_s:.0f} s"
-        t.add_row(Text(s.key, style="bold"), rows, rate, Text(info, style="dim"), "", "")
-        prev = ""
-        for sig in s.signals:
-            label = sig.label if sig.column != prev else f"{' ' * len(sig.column)} {sig.component}"
-            prev = sig.column
-            name = sig.column
-            t.add_row(
-                Text(label),
-                format_value(sig.value, sig.integer, name),
-                Text(sig.units if sig.units != "1" else "", style="dim"),
-                Text(sparkline(sig.trend), style="cyan"),
-                format_value(sig.trend_min, sig.integer, name) if math.isfinite(sig.trend_min) else "",
-                format_value(sig.trend_max, sig.integer, name) if math.isfinite(sig.trend_max) else "",
-            )
-    return t
+            head.append(info, style="dim")
+        out.append(head)
+        if not rs:
+            continue
+        t = Table(box=box.SIMPLE_HEAD, show_header=i == 0, padding=(0, 1), pad_edge=False, show_edge=False, expand=False)
+        t.add_column("reading", no_wrap=True, width=w["label"])
+        t.add_column("value", justify="right", no_wrap=True, width=w["value"])
+        t.add_column("units", no_wrap=True, width=w["units"])
+        if trend > 0:
+            t.add_column(trend_head, no_wrap=True, width=trend)
+        if extremes:
+            t.add_column("min", justify="right", no_wrap=True, width=w["lo"])
+            t.add_column("max", justify="right", no_wrap=True, width=w["hi"])
+        for r in rs:
+            cells: list[RenderableType] = [Text(r.label), Text(r.value), Text(r.units, style="dim")]
+            if trend > 0:
+                cells.append(Text(sparkline(resample(r.trend, trend)), style="cyan"))
+            if extremes:
+                cells += [Text(r.lo), Text(r.hi)]
+            t.add_row(*cells)
+        out.append(t)
+    return out
 
 
 def _events_table(state: WatchState) -> Table:
     shown = len(state.events)
-    t = Table(title=f"last {shown} of {state.events_total} events", title_justify="left", box=box.SIMPLE_HEAD,
-              padding=(0, 1), pad_edge=False, show_edge=False)
+    t = Table(title=f"last {shown} of {state.events_meaningful:,} events (instrument traffic summarised below)", title_justify="left",
+              box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False)
     t.add_column("t s", justify="right", no_wrap=True)
-    t.add_column("kind", no_wrap=True)
+    t.add_column("kind", no_wrap=True, min_width=len(layout.EVENT_STEP_START))
     t.add_column("source", no_wrap=True, max_width=16, overflow="ellipsis")
     t.add_column("step", justify="right", no_wrap=True)
-    t.add_column("message", no_wrap=True, overflow="ellipsis", ratio=1)
+    t.add_column("message", overflow="fold", ratio=1)
     for e in state.events:
         style = "red" if e.kind in ("error", "fault", "abort") else ("bold" if e.kind in (layout.EVENT_STEP_START, layout.EVENT_STEP_END) else "")
         t.add_row(f"{e.t_s:.1f}", Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "", Text(e.message))
@@ -610,7 +756,7 @@ def watch(
     if not interval_s > 0:
         raise InputError(f"the refresh interval must be > 0 s, got {interval_s!r}", None, "--interval")
     wait = (0.0 if once else WAIT_FOR_FILE_S) if wait_s is None else float(wait_s)
-    tracker = StepTracker()
+    tracker = StepTracker(keep=max_events)
     read = lambda: snapshot(path, stale_after_s=stale_after_s, max_events=max_events, tracker=tracker)  # noqa: E731
     try:
         state = _first_read(path, console, wait, read)
@@ -619,7 +765,7 @@ def watch(
             return EXIT_OK
         updates = 1
         failing_since: float | None = None
-        with Live(build(state), console=console, auto_refresh=False, transient=False) as live:
+        with Live(build(state, console.width), console=console, auto_refresh=False, transient=False) as live:
             next_at = time.monotonic() + interval_s
             while max_updates is None or updates < max_updates:
                 time.sleep(max(0.0, next_at - time.monotonic()))
@@ -634,7 +780,7 @@ def watch(
                         raise
                     state.read_error = exc.one_line()
                 updates += 1
-                live.update(build(state), refresh=True)
+                live.update(build(state, console.width), refresh=True)  # the width again: the terminal may have been resized
                 if state.final:
                     break
     except KeyboardInterrupt:

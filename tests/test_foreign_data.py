@@ -327,7 +327,7 @@ def test_import_of_a_mapped_file_round_trips(tmp_path, phone):
     assert ds.sample_rate_hz == 10.0
     # existing files are never overwritten
     res = run_cli("import", str(phone), "--map", "gyro=angular_velocity[3:6]", "-o", str(out))
-    assert bench_err(res).startswith("-o: run file")
+    assert bench_err(res).startswith(f"-o: {out} exists; choose another name or delete it")
 
 
 def test_calibrate_and_diagnose_take_a_mapped_file(tmp_path):

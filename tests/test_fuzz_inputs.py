@@ -467,7 +467,8 @@ _KEYS = st.one_of(st.sampled_from([
     "schema", "name", "title", "instruments", "steps", "parameters", "limits", "interlocks", "mode", "world", "recorder",
     "driver", "port", "sim", "backend", "timeout", "baudrate", "channels", "wait", "record", "configure", "power", "repeat",
     "for_each", "call", "rate_steps", "duration", "instrument", "values", "var", "count", "procedure", "args", "latitude",
-    "speed_calibration", "k", "b", "sensor_model", "eccentricity", "signal", "max", "min", "stall", "max_gap"]),
+    "speed_calibration", "k", "b", "sensor_model", "eccentricity", "signal", "max", "min", "stall", "max_gap",
+    "requires", "unit", "station", "serial", "firmware", "calibration_due"]),
     st.text(max_size=8))
 _VALUES = st.recursive(_SCALARS, lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(_KEYS, inner, max_size=4)),
                        max_leaves=25)

@@ -61,9 +61,9 @@ def _run(name: str, params: list[str], runs_dir: Path, timeout: float) -> subpro
 
 
 def _assert_outcome(name: str, proc: subprocess.CompletedProcess) -> None:
-    lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
-    assert lines, f"no output; stderr: {proc.stderr[-2000:]}"
-    final = lines[-1]
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith(("COMPLETED", "FAILED", "ABORTED"))]
+    assert lines, f"no outcome line; stdout: {proc.stdout[-2000:]}; stderr: {proc.stderr[-2000:]}"
+    final = lines[-1]  # the summary's outcome line (the next useful commands follow it)
     expected = EXPECTED_FAILURES.get(name, set())
     if not expected:
         assert proc.returncode == 0, f"exit {proc.returncode}: {final}\n{proc.stderr[-2000:]}"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import shutil
 import struct
 import sys
@@ -128,8 +129,8 @@ def test_report_of_session(name, status, tmp_path):
     check_self_contained(html, p)
     assert p.step_rows == len(summary.steps) > 0
     text = " ".join(p.text)
-    for n in range(1, 12):
-        assert f"{n}. " in text
+    headings = re.findall(r"<h2>(\d+)\. ", html)
+    assert headings == [str(n) for n in range(1, len(headings) + 1)] and len(headings) >= 4  # numbered in order
     assert status in " ".join(p.classes["pass" if status == "COMPLETED" else "fail"])
     assert summary.attrs["procedure_name"] in text
     if status == "ABORTED":
@@ -142,7 +143,7 @@ def test_rate_transfer_session_sections():
     p = parse(html)
     text = " ".join(p.text)
     assert len(p.imgs) >= 2  # environment (board temperatures) and rates
-    assert "2 of 2 checks passed" in text
+    assert "all 2 checks with limits passed" in text
     assert "sf_z" in text and "scale_factor_error" in text
 
 
@@ -150,7 +151,7 @@ def test_chamber_session_has_no_board_sections():
     p = parse(R.build_report(SESSIONS / "chamber_short.h5"))
     notes = " ".join(p.classes["note"])
     assert "no ACS board data" in notes
-    assert "No gyro output" in notes
+    assert "Rates: not applicable: no gyro output" in notes
     assert len(p.imgs) == 1  # temperature and pressure only
 
 
@@ -208,13 +209,15 @@ def test_build_report_propagates_analysis_bugs(monkeypatch):
     def buggy(d):
         raise KeyError("bug in the analysis")
 
-    monkeypatch.setitem(R.ANALYSES, "thermal", (_fake_module(monkeypatch, "fake_thermal_bug", buggy), "thermal calibration"))
+    monkeypatch.setitem(R.ANALYSES, "rate_transfer", (_fake_module(monkeypatch, "fake_rt_bug", buggy), "rate-transfer calibration"))
     with pytest.raises(KeyError):
         R.build_report(SESSIONS / "rate_transfer_short.h5")
 
 
 def test_build_report_with_stubbed_analyses(monkeypatch):
-    """Wiring of sections 6-8 and 10: stub methods return synthetic JSON for the session's dataset."""
+    """Wiring of the analysis sections and the calibration tables: stub methods return synthetic JSON for
+    the session's dataset (the thermal section made to apply: the session has no temperature sweep)."""
+    monkeypatch.setattr(R, "why_no_sweep", lambda ds: "")
     thermal = CalibrationResult("thermal", _thermal_json(), [ResultTable("Thermal bias polynomial", ["axis", "c0"], [["z", 0.1]])],
                                 notes=["synthetic"])
     monkeypatch.setitem(R.ANALYSES, "thermal", (_fake_module(monkeypatch, "fake_thermal", lambda d: thermal), "thermal calibration"))
@@ -347,8 +350,9 @@ def test_check_results_and_units():
     assert R.signal_units(summary, "acs_board.gyro.z") == "deg/s"
     assert R.signal_units(summary, "tvac.air_temp") == ""
     assert [R._stage(c) for c in checks] == ["pre", "pre", "post_z", "post_z"]
-    p = _one_page(R.section_checks(summary))
-    assert "3 of 4 checks passed" in " ".join(p.classes["fail"])
+    p = _one_page(R.section_verdict(summary, checks))
+    assert "FAILED" in " ".join(p.classes["fail"])
+    assert "1 of 4 checks failed: post_z_sf_z_change" in " ".join(p.text)
 
 
 def test_section_pre_post():
@@ -395,10 +399,9 @@ def test_envelope_keeps_extremes_and_gaps():
 
 
 def test_time_axis_units():
-    assert F.time_axis(300)[1] == "run time (s)"
-    assert F.time_axis(3600)[1] == "run time (min)"
-    assert F.time_axis(8 * 3600)[1] == "run time (h)"
-    assert R.hms(5.0) == "5.0 s" and R.hms(3725) == "1:02:05" and R.hms(None) == "-"
+    assert F.time_axis(300) == (60.0, "run time (h:mm:ss)")
+    assert F.time_axis(8 * 3600) == (3600.0, "run time (h:mm:ss)")
+    assert R.hms(5.0) == "0:00:05" and R.hms(3725) == "1:02:05" and R.hms(None) == "-"
 
 
 def test_html_cell_classes():

@@ -82,7 +82,7 @@ def _assert_only_layout_names(f: h5py.File) -> None:
     for path in present:
         extra = set(f[path].attrs) - named[path]
         assert not extra, f"attributes of /{path} the layout does not name: {sorted(extra)}"
-    root_names = set(layout.ROOT_ATTRS) | set(layout.ROOT_ATTRS_AT_CLOSE)
+    root_names = set(layout.ROOT_ATTRS) | set(layout.ROOT_ATTRS_AT_CLOSE) | set(layout.IDENTITY_ATTRS)  # identity: optional
     assert set(f.attrs) <= root_names, f"root attributes the layout does not name: {sorted(set(f.attrs) - root_names)}"
     assert set(layout.ROOT_ATTRS) <= set(f.attrs)
     assert f[layout.EVENTS].dtype == layout.EVENT_DTYPE

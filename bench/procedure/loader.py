@@ -16,16 +16,19 @@ import itertools
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
 from bench.errors import InputError, InputErrors, Location
 from bench.procedure.limits import check_step_limits
-from bench.procedure.schema import BLOCK_TYPES, SCHEMA_ID, STEP_TYPES, FieldSpec
+from bench.procedure.schema import BLOCK_TYPES, REQUIREMENTS, SCHEMA_ID, STEP_TYPES, FieldSpec
 from bench.procedure.signals import DEFAULT_KINDS, signal_units
 from bench.units import TEMPERATURE_DIFFERENCE, to_units
 from bench.yamlsrc import MAX_FLOAT, Fields, Node, Source, load_yaml, parse_yaml
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.procedure.estimate import Estimate, LabModel
 
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 VAR_RE = re.compile(r"^\$\{?([A-Za-z_][A-Za-z0-9_]*)\}?$")
@@ -50,19 +53,6 @@ class Step:
     """Loop variables in force, e.g. ``T=-29 degC``."""
     meta: dict[str, Any] = field(default_factory=dict)
     """Facts the expansion knows (e.g. the commanded rate of a rate-schedule window)."""
-
-    def estimated_duration_s(self) -> float:
-        """Time the step should take (s); conditional waits count their minimum."""
-        p = self.params
-        if self.type in ("record", "wait"):
-            return float(p.get("duration", 0.0))
-        if self.type == "wait_until_stable":
-            return float(p.get("hold", 0.0))
-        if self.type in ("table_rate", "bench_rate"):
-            return float(p.get("settle", 0.0))
-        if self.type == "set_temperature" and p.get("wait"):
-            return float(self.meta.get("ramp_time_s", 0.0))
-        return 0.0
 
 
 @dataclass
@@ -99,9 +89,20 @@ class Procedure:
     interlocks: list[Interlock] = field(default_factory=list)
     sources: dict[str, str] = field(default_factory=dict)
     """Text of every called procedure file, by path (the run file keeps them)."""
+    unit_required_at: Location | None = None
+    """Where the procedure (or a procedure it calls) says ``requires: {unit: true}``: ``bench run``
+    then needs ``--unit``; None when no unit under test is required."""
 
-    def estimated_duration_s(self) -> float:
-        return sum(s.estimated_duration_s() for s in self.steps)
+    def estimate(self, lab: "LabModel | None" = None) -> "Estimate":
+        """How long each step should take on the lab model ``lab`` (default: the model's own
+        defaults); see :mod:`bench.procedure.estimate`."""
+        from bench.procedure.estimate import estimate_procedure
+
+        return estimate_procedure(self.steps, lab)
+
+    def estimated_duration_s(self, lab: "LabModel | None" = None) -> float:
+        """Estimated run time of the whole procedure (s; a lower bound if :meth:`estimate` says so)."""
+        return self.estimate(lab).total_s
 
 
 def load_procedure(path: str | Path, params: dict[str, str] | None = None, kinds: dict[str, str] | None = None,
@@ -160,6 +161,7 @@ class _Doc:
                     self.parameters[key] = node
         self.limits_node = top.node_at("limits")
         self.interlocks_node = top.node_at("interlocks")
+        self.unit_required_at = _requires(top.node_at("requires"), errors)
         self.steps_node = top.node_at("steps")
         if self.steps_node is None:
             errors.append(InputError("missing required field in procedure", src.root.location, "steps"))
@@ -193,7 +195,19 @@ def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None,
         raise InputErrors(errors)
     plain_params = {k: n.plain() for k, n in env.items()}
     return Procedure(doc.schema, doc.name, doc.title, doc.description, doc.instruments, exp.steps, src.path, src.text,
-                     doc.inst_locs, plain_params, limits, interlocks, exp.sources)
+                     doc.inst_locs, plain_params, limits, interlocks, exp.sources,
+                     unit_required_at=doc.unit_required_at or exp.unit_required_at)
+
+
+def _requires(node: Node | None, errors: list[InputError]) -> Location | None:
+    """``requires: {unit: true}`` (schema :data:`REQUIREMENTS`): the location of the ``unit`` key
+    when the procedure requires a unit under test, else None."""
+    if node is None:
+        return None
+    f = Fields(node, "requires", errors)
+    required = {key: f.get(key, bool, default=False) for key in REQUIREMENTS}
+    f.check_unknown()
+    return f.key_location("unit") if required["unit"] else None
 
 
 def _as_node(value: Any, loc: Location) -> Node:
@@ -244,6 +258,8 @@ class _Expander:
         self._sites: list[Location] = []  # the call steps being expanded, outermost first
         self.called_from: dict[int, str] = {}
         """Step index -> ``(called from FILE:LINE:COL)`` of every call it was expanded through."""
+        self.unit_required_at: Location | None = None
+        """The first called procedure's ``requires: {unit: true}``, if any requires a unit."""
 
     def expand(self, nodes: list[Node], env: dict[str, Node], doc: _Doc, prefix: str, context: str, depth: int) -> None:
         for i, node in enumerate(nodes):
@@ -535,6 +551,7 @@ class _Expander:
             return
         sub = _Doc(sub_src, self.errors)
         self.sources[str(target)] = sub_src.text
+        self.unit_required_at = self.unit_required_at or sub.unit_required_at
         args: dict[str, Node] = {}
         if anode is not None:
             a = self._subst(anode, env)

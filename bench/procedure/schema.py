@@ -53,6 +53,8 @@ CHAMBER = _inst("tvac")
 TABLE = _inst("rate_table")
 BENCH = _inst("stepper_bench")
 TIMEOUT = FieldSpec("quantity", "s", required=False, default=12 * 3600.0, minimum=0.0, doc="give up after this long (default 12 h)")
+PROMPT_TIMEOUT_S = 3600.0
+"""Default wall time (s) a prompt waits for the operator's answer before the run aborts."""
 STATISTICS = ("mean", "std", "min", "max", "rms", "slope", "count", "scale_factor_error", "bias")
 
 STEP_TYPES: dict[str, StepSpec] = {
@@ -61,8 +63,11 @@ STEP_TYPES: dict[str, StepSpec] = {
         {
             "text": FieldSpec("str", doc="what the operator must do or confirm"),
             "id": FieldSpec("str", required=False, default="", doc="key of the answer in an answers file (default: the step name)"),
+            "timeout": FieldSpec("quantity", "s", required=False, default=PROMPT_TIMEOUT_S, minimum=0.0,
+                                 doc="wall time to wait for an answer before the run aborts (default 1 h)"),
         },
-        "Ask the operator to act and confirm (yes/no); 'no' aborts the run. Answers can come from a file (--answers).",
+        "Ask the operator to act and confirm (yes/no; anything else is asked again, up to 3 times); 'no' aborts the run. "
+        "Answers can come from a file (--answers).",
         "text",
     ),
     "power": StepSpec(
@@ -177,6 +182,12 @@ STEP_TYPES: dict[str, StepSpec] = {
     ),
 }
 """Action steps of schema version 1 (executed by the runner)."""
+
+REQUIREMENTS: dict[str, str] = {
+    "unit": "true: `bench run` needs `--unit SERIAL` (the unit under test is recorded in the run file)",
+}
+"""Keys of the top-level ``requires:`` mapping (each a bool, default false): what a run of the
+procedure must be given. ``validate`` and ``plan`` accept them; ``run`` enforces them."""
 
 BLOCK_TYPES: dict[str, str] = {
     "repeat": "repeat `steps` `count` times (loop variable `$iteration`, 1-based)",

@@ -10,6 +10,7 @@ from bench.record.destination import check_destination, run_file_name
 from bench.record.layout import EVENT_DTYPE, EVENT_KINDS, FORMAT_VERSION
 from bench.record.reader import (
     EventRow,
+    InstrumentIdentity,
     RunSummary,
     StepSummary,
     StreamSummary,
@@ -26,6 +27,7 @@ __all__ = [
     "FORMAT_VERSION",
     "Column",
     "EventRow",
+    "InstrumentIdentity",
     "RunRecorder",
     "RunSummary",
     "StepSummary",

@@ -82,6 +82,22 @@ ATTR_STATION = "station"
 IDENTITY_ATTRS = (ATTR_UNIT_SERIAL, ATTR_UNIT_PART, ATTR_UNIT_REVISION, ATTR_STATION)
 """Optional root attributes naming what was tested where."""
 
+# identity of an instrument: attributes of /instruments/<name>. The instrument reports its own
+# (``identify()``: vendor, model, serial, firmware ... free-form); the lab config's declarations sit
+# next to them under their own names (format 1 additions: absent in older files, read as "")
+ATTR_REPORTED_SERIAL = "serial"
+"""Instrument attribute: the serial number the instrument reports."""
+ATTR_REPORTED_FIRMWARE = "firmware"
+"""Instrument attribute: the firmware the instrument reports."""
+ATTR_CONFIG_SERIAL = "config_serial"
+"""Instrument attribute: the serial number the lab config gives (``serial:``)."""
+ATTR_CONFIG_FIRMWARE = "config_firmware"
+"""Instrument attribute: the firmware the lab config expects (``firmware:``)."""
+ATTR_CALIBRATION_DUE = "calibration_due"
+"""Instrument attribute: the calibration due date the lab config gives (``calibration_due:``), ``YYYY-MM-DD`` (UTC)."""
+INSTRUMENT_CONFIG_ATTRS = (ATTR_CONFIG_SERIAL, ATTR_CONFIG_FIRMWARE, ATTR_CALIBRATION_DUE)
+"""Instrument attributes taken from the lab config; written only for what the config declares."""
+
 ROOT_ATTRS = (
     ATTR_FORMAT_VERSION, ATTR_SOFTWARE_VERSION, ATTR_PROCEDURE_NAME, ATTR_PROCEDURE_PATH, ATTR_CONFIG_PATH,
     ATTR_OPERATOR, ATTR_HOST, ATTR_MODE, ATTR_STARTED_UTC, ATTR_ENDED_UTC, ATTR_STATUS, ATTR_ABORT_REASON,
@@ -109,6 +125,10 @@ STATUSES_FINAL = (STATUS_COMPLETED, STATUS_ABORTED, STATUS_FAILED)
 """Statuses the writer sets when it closes the file."""
 STATUS_CRASHED = "crashed"
 """Never stored: the reader's name for a :data:`STATUS_RUNNING` file whose heartbeat is stale."""
+STATUS_WAITING = "waiting"
+"""Never stored: what ``bench inspect`` and ``bench watch`` show for a :data:`STATUS_RUNNING` file
+with a fresh heartbeat whose last :data:`EVENT_PROMPT` has no answer yet (the run waits for the
+operator; ``RunSummary.live_status``, while ``RunSummary.status`` stays ``running``)."""
 
 # ---- attributes of datasets and groups ----------------------------------------------------------
 ATTR_UNITS = "units"
@@ -230,6 +250,35 @@ EVENT_KINDS = (
 """Event kinds written by the runner (others up to :data:`EVENT_KIND_BYTES` ASCII bytes are accepted)."""
 STEP_EVENT_KINDS = (EVENT_RUN_START, EVENT_STEP_START, EVENT_STEP_END)
 """The events the step list is built from."""
+TRAFFIC_EVENT_KINDS = ("command", "reply")
+"""Instrument traffic: every frame sent (``command``) and received (``reply``), source the
+instrument. Kept whole for replay; ``bench inspect`` and ``bench watch`` summarise it per
+instrument and list the other ("meaningful") events."""
+EVENT_PROMPT = "prompt"
+"""The runner asks the operator: source ``operator``, message the question, data JSON ``id``,
+``text``, ``choices`` (accepted answers), ``attempt`` (1, 2, ...), ``timeout_s`` (s of wall time).
+Until the next ``operator`` event (the answer), a step end, ``abort`` or ``run_end``, the run waits
+for the operator (:data:`STATUS_WAITING`)."""
+PROMPT_CLOSING_KINDS = ("operator", EVENT_STEP_END, "abort", "run_end")
+"""Events after which a :data:`EVENT_PROMPT` no longer waits."""
+EVENT_CHECK = "check"
+"""A check's result: source the check name, message ``outcome: statistic of signal = value``, data
+JSON ``name``, ``signal``, ``statistic``, ``window``, ``value``, ``min``, ``max``, ``reference``,
+``max_difference``, ``outcome``, ``basis``."""
+
+OUTCOME_PASSED = "passed"
+OUTCOME_FAILED = "failed"
+OUTCOME_RECORDED = "recorded"
+"""Outcome of a check without limits (no ``min``, ``max`` or ``max_difference``): its value is
+stored, no verdict is given (neither passed nor failed)."""
+CHECK_OUTCOMES = (OUTCOME_PASSED, OUTCOME_FAILED, OUTCOME_RECORDED)
+"""Outcomes of a check step (first word of its ``step_end`` message and ``outcome`` of its event)."""
+EVENT_OPERATOR = "operator"
+"""An operator's answer; the message is a JSON object (a prompt step: source ``prompt``)."""
+SOURCE_CALIBRATION = "calibration"
+"""Source of the :data:`EVENT_OPERATOR` event confirming a run on an instrument past its calibration
+due date; message JSON: ``instrument``, ``calibration_due``, ``date`` (UTC, of the run), ``answer``,
+``source`` (``operator`` or ``--accept-overdue-calibration``), ``operator`` (who)."""
 
 
 def utc_text(t: datetime) -> str:

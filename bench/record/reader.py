@@ -14,12 +14,13 @@ Units: run times in s since the start of the run, wall times in s since the Unix
 from __future__ import annotations
 
 import ctypes
+import json
 import os
 import re
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import date, datetime, timezone
 from pathlib import Path
 from typing import Any, Collection, Iterator
 
@@ -31,6 +32,8 @@ from rich.text import Text
 
 from bench.errors import InputError
 from bench.record import layout
+from bench.record.checks import check_counts, check_results, checks_verdict, describe_limits, display_value
+from bench.termtable import fit_tables
 
 STALE_AFTER_S = 10.0
 """A ``running`` file whose heartbeat is at least this old (s of wall time) reads as ``crashed``."""
@@ -93,6 +96,62 @@ class StepSummary:
 
 
 @dataclass
+class InstrumentIdentity:
+    """Who one instrument was: as it reported itself (``serial``, ``firmware``) and as the lab config
+    declared it (``config_serial``, ``config_firmware``, ``calibration_due`` as ``YYYY-MM-DD``, UTC);
+    ``""`` where unknown (older files, undeclared). ``calibration_overdue``: the due date was before
+    the run's start date (UTC). ``overdue_confirmation``: the recorded answer to the overdue
+    confirmation, ``answer (source, by who)``; ``""`` if none was recorded."""
+
+    serial: str = ""
+    firmware: str = ""
+    config_serial: str = ""
+    config_firmware: str = ""
+    calibration_due: str = ""
+    calibration_overdue: bool = False
+    overdue_confirmation: str = ""
+
+
+@dataclass
+class PendingPrompt:
+    """The question a live run waits on (its last ``prompt`` event, not answered yet): ``text`` as
+    asked (with its accepted answers), prompt ``id``, ``attempt`` (1, 2, ...), the run time ``t_s`` (s)
+    and wall time ``wall_unix`` (s since epoch) it was asked at, and its 0-based ``step``."""
+
+    text: str
+    id: str
+    attempt: int
+    t_s: float
+    wall_unix: float
+    step: int
+
+
+@dataclass
+class TrafficSummary:
+    """The instrument traffic of one instrument (events ``command`` and ``reply``, kept for replay):
+    how many of each, ``polls`` (rows of its monitor stream, 0 if it has none) and the run times
+    (s) of its first and last frame."""
+
+    instrument: str
+    commands: int = 0
+    replies: int = 0
+    polls: int = 0
+    t_first_s: float | None = None
+    t_last_s: float | None = None
+
+    def describe(self) -> str:
+        """``tvac: 28,800 polls, 57,600 commands, 57,600 replies, last at 6:25:50``."""
+        polls = f"{_count(self.polls, 'poll')}, " if self.polls else ""
+        last = f", last at {format_run_time(self.t_last_s)}" if self.t_last_s is not None else ""
+        return f"{self.instrument}: {polls}{_count(self.commands, 'command')}, {_count(self.replies, 'reply', 'replies')}{last}"
+
+
+def _count(n: int, one: str, many: str = "") -> str:
+    """``1 command``, ``28,800 commands``."""
+    return f"{n:,} {one if n == 1 else (many or one + 's')}"
+
+
+@dataclass
 class RunSummary:
     """Everything about a run except the stream data.
 
@@ -115,21 +174,44 @@ class RunSummary:
     heartbeat_run_time_s: float | None = None
     event_counts: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    identity: dict[str, str] = field(default_factory=dict)
+    """Unit under test and station: every key of :data:`layout.IDENTITY_ATTRS` (``unit_serial``,
+    ``unit_part``, ``unit_revision``, ``station``), ``""`` when the file does not record it."""
+    instrument_identity: dict[str, InstrumentIdentity] = field(default_factory=dict)
+    """Instrument name -> its reported and declared identity and calibration state."""
+    waiting_for: PendingPrompt | None = None
+    """The operator prompt a live run (status ``running``, heartbeat fresh) waits on, else None."""
+    traffic: dict[str, TrafficSummary] = field(default_factory=dict)
+    """Instrument -> its ``command``/``reply`` traffic, counted over the whole file (also when
+    those events are not decoded)."""
+
+    @property
+    def live_status(self) -> str:
+        """``status``, except ``waiting`` (:data:`layout.STATUS_WAITING`) while a live run waits for
+        the operator: what ``bench inspect`` and ``bench watch`` show."""
+        return layout.STATUS_WAITING if self.waiting_for is not None else self.status
+
+    @property
+    def meaningful_events(self) -> list[EventRow]:
+        """The decoded events except instrument traffic (:data:`layout.TRAFFIC_EVENT_KINDS`)."""
+        return [e for e in self.events if e.kind not in layout.TRAFFIC_EVENT_KINDS]
 
 
 def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_unix: float | None = None,
-                     event_kinds: Collection[str] | None = None) -> RunSummary:
+                     event_kinds: Collection[str] | None = None, traffic: bool = True) -> RunSummary:
     """Summarise the run file at ``path`` (complete, aborted, crashed or still being written).
 
     ``stale_after_s`` (s) is the heartbeat age from which a ``running`` file is reported as
     ``crashed``; ``now_unix`` (s since epoch) defaults to the current time. ``event_kinds``: decode
-    only the events of these kinds (``events``, ``steps`` and ``event_counts`` then see only those;
-    a long run logs every command and reply, hundreds of thousands of events).
+    only the events of these kinds (``events`` and ``steps`` then see only those; a long run logs
+    every command and reply, hundreds of thousands of events); ``traffic=False`` decodes every event
+    except the instrument traffic. ``event_counts``, ``traffic`` and ``waiting_for`` always count
+    every event.
     Raises :class:`InputError` if the file is not a readable bench run file or is of a newer format.
     """
     path = Path(path)
     with _open_run(path) as (f, warnings):
-        summary = _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix, event_kinds)
+        summary = _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix, event_kinds, traffic)
         summary.warnings = warnings
         return summary
 
@@ -393,7 +475,7 @@ def _checked_rows(ds: h5py.Dataset, limit: int) -> int:
 
 
 def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
-               event_kinds: Collection[str] | None = None) -> RunSummary:
+               event_kinds: Collection[str] | None = None, traffic: bool = True) -> RunSummary:
     limit = _size_limit(path)
     attrs = {k: _plain(v) for k, v in f.attrs.items()}
     hb = read_heartbeat(f, limit)
@@ -412,10 +494,13 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
                 status, detail = layout.STATUS_CRASHED, f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
             else:
                 detail = f"being written: last heartbeat {since} ({age:.1f} s ago{at})"
-    events = _read_events(f, limit, event_kinds)
-    counts: dict[str, int] = {}
-    for e in events:
-        counts[e.kind] = counts.get(e.kind, 0) + 1
+    rows, blob = _event_table(f, limit)
+    events = _decode_events(rows, blob, event_kinds, traffic)
+    streams = [_stream_summary(key, g, limit) for key, g in _stream_groups(f).items()]
+    waiting = _pending_prompt(rows, blob) if status == layout.STATUS_RUNNING else None
+    if waiting is not None:
+        asked = f"asked {max(now_unix - waiting.wall_unix, 0.0):.0f} s ago at run time {waiting.t_s:.1f} s"
+        detail = f"waiting for operator: {waiting.text} ({asked}); {detail}"
     return RunSummary(
         path=path,
         attrs=attrs,
@@ -423,15 +508,54 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
         procedure_text=_read_text(f[layout.PROCEDURE_TEXT], limit),
         config_text=_read_text(f[layout.CONFIG_TEXT], limit),
         instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in f[layout.INSTRUMENTS].items()},
-        streams=[_stream_summary(key, g, limit) for key, g in _stream_groups(f).items()],
+        streams=streams,
         steps=_steps(events, live=status == layout.STATUS_RUNNING),
         events=events,
         abort_reason=str(attrs.get(layout.ATTR_ABORT_REASON, "")),
         status_detail=detail,
         heartbeat_unix=hb_unix,
         heartbeat_run_time_s=hb_run,
-        event_counts=counts,
+        event_counts=_kind_counts(rows),
+        identity={k: str(attrs.get(k, "")) for k in layout.IDENTITY_ATTRS},
+        instrument_identity=_instrument_identities(f, attrs, events),
+        waiting_for=waiting,
+        traffic=_traffic(rows, streams),
     )
+
+
+def _instrument_identities(f: h5py.File, attrs: dict[str, Any], events: list[EventRow]) -> dict[str, InstrumentIdentity]:
+    """Each instrument's :class:`InstrumentIdentity`: its identity attributes, the overdue flag
+    (calibration due before the run's start date, UTC) and the recorded overdue confirmation."""
+    started = _date_of(str(attrs.get(layout.ATTR_STARTED_UTC, ""))[:10])
+    answers: dict[str, str] = {}
+    for e in events:
+        if e.kind == layout.EVENT_OPERATOR and e.source == layout.SOURCE_CALIBRATION:
+            try:
+                d = json.loads(e.message)
+                answers[str(d["instrument"])] = f"{d['answer']} ({d['source']}, by {d['operator']})"
+            except (ValueError, KeyError, TypeError):
+                continue
+    out: dict[str, InstrumentIdentity] = {}
+    for name, g in f[layout.INSTRUMENTS].items():
+        a = {k: str(_plain(v)) for k, v in g.attrs.items()}
+        due = a.get(layout.ATTR_CALIBRATION_DUE, "")
+        due_date = _date_of(due)
+        out[name] = InstrumentIdentity(
+            serial=a.get(layout.ATTR_REPORTED_SERIAL, ""), firmware=a.get(layout.ATTR_REPORTED_FIRMWARE, ""),
+            config_serial=a.get(layout.ATTR_CONFIG_SERIAL, ""), config_firmware=a.get(layout.ATTR_CONFIG_FIRMWARE, ""),
+            calibration_due=due,
+            calibration_overdue=due_date is not None and started is not None and due_date < started,
+            overdue_confirmation=answers.get(name, ""),
+        )
+    return out
+
+
+def _date_of(text: str) -> date | None:
+    """``YYYY-MM-DD`` as a date, None if it is not one."""
+    try:
+        return date.fromisoformat(text) if len(text) == 10 else None
+    except ValueError:
+        return None
 
 
 def _plain(v: Any) -> Any:
@@ -532,16 +656,75 @@ def event_row(r: np.void, message: str, data: bytes) -> EventRow:
 
 
 def _read_events(f: h5py.File, limit: int, kinds: Collection[str] | None = None) -> list[EventRow]:
+    rows, blob = _event_table(f, limit)
+    return _decode_events(rows, blob, kinds)
+
+
+def _event_table(f: h5py.File, limit: int) -> tuple[np.ndarray, bytes]:
+    """Every row of ``/events`` (:data:`layout.EVENT_DTYPE`) and the whole ``/events_blob``."""
     ds, blob_ds = event_datasets(f)
     rows = ds[: _checked_rows(ds, limit)]
-    if kinds is not None:
-        rows = rows[np.isin(rows["kind"], np.array([k.encode("ascii") for k in kinds], dtype=rows.dtype["kind"]))]
     blob = np.asarray(blob_ds[: _checked_rows(blob_ds, limit)], dtype=np.uint8).tobytes()
-    return [
-        event_row(r, _slice(blob, int(r["msg_off"]), int(r["msg_len"])).decode("utf-8", errors="replace"),
-                  _slice(blob, int(r["data_off"]), int(r["data_len"])))
-        for r in rows
-    ]
+    return rows, blob
+
+
+def _kind_mask(rows: np.ndarray, kinds: Collection[str]) -> np.ndarray:
+    """Which rows are of one of ``kinds``."""
+    return np.isin(rows["kind"], np.array([k.encode("ascii") for k in kinds], dtype=rows.dtype["kind"]))
+
+
+def _decode_events(rows: np.ndarray, blob: bytes, kinds: Collection[str] | None = None, traffic: bool = True) -> list[EventRow]:
+    """The rows as :class:`EventRow` (only ``kinds`` if given; without the traffic if not ``traffic``)."""
+    if kinds is not None:
+        rows = rows[_kind_mask(rows, kinds)]
+    if not traffic:
+        rows = rows[~_kind_mask(rows, layout.TRAFFIC_EVENT_KINDS)]
+    return [_event_of(r, blob) for r in rows]
+
+
+def _event_of(r: np.void, blob: bytes) -> EventRow:
+    return event_row(r, _slice(blob, int(r["msg_off"]), int(r["msg_len"])).decode("utf-8", errors="replace"),
+                     _slice(blob, int(r["data_off"]), int(r["data_len"])))
+
+
+def _kind_counts(rows: np.ndarray) -> dict[str, int]:
+    """Events per kind over all rows (rows the writer has not filled yet left out)."""
+    kinds, n = np.unique(rows["kind"], return_counts=True)
+    return {k.decode("ascii", errors="replace"): int(c) for k, c in zip(kinds, n) if k}
+
+
+def _traffic(rows: np.ndarray, streams: list[StreamSummary]) -> dict[str, TrafficSummary]:
+    """Per instrument: its command and reply events and monitor rows (vectorised over all rows)."""
+    sel = rows[_kind_mask(rows, layout.TRAFFIC_EVENT_KINDS)]
+    monitor_rows = {s.key: s.rows for s in streams}
+    out: dict[str, TrafficSummary] = {}
+    for src in np.unique(sel["source"]):
+        mine = sel[sel["source"] == src]
+        name = bytes(src).decode("utf-8", errors="replace")
+        t = mine["t_s"]
+        out[name] = TrafficSummary(
+            name, commands=int(np.count_nonzero(mine["kind"] == b"command")), replies=int(np.count_nonzero(mine["kind"] == b"reply")),
+            polls=monitor_rows.get(layout.monitor_key(name), 0), t_first_s=float(t.min()), t_last_s=float(t.max()),
+        )
+    return out
+
+
+def _pending_prompt(rows: np.ndarray, blob: bytes) -> PendingPrompt | None:
+    """The last ``prompt`` event if no answer, step end, abort or end of run came after it."""
+    asked = np.flatnonzero(rows["kind"] == layout.EVENT_PROMPT.encode("ascii"))
+    if not asked.size:
+        return None
+    last = int(asked[-1])
+    if _kind_mask(rows[last + 1:], layout.PROMPT_CLOSING_KINDS).any():
+        return None
+    e = _event_of(rows[last], blob)
+    try:
+        info = json.loads(e.data.decode("utf-8")) if e.data else {}
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        info = {}
+    info = info if isinstance(info, dict) else {}
+    attempt = info.get("attempt", 1)
+    return PendingPrompt(e.message, str(info.get("id", "")), attempt if isinstance(attempt, int) else 1, e.t_s, e.wall_unix, e.step)
 
 
 def _slice(blob: bytes, off: int, n: int) -> bytes:
@@ -578,6 +761,14 @@ def step_outcome(message: str) -> tuple[str, str]:
     return outcome.strip() or "done", detail.strip()
 
 
+def format_run_time(seconds: float | None) -> str:
+    """``h:mm:ss`` of a run time or duration (s); ``-`` when unknown."""
+    if seconds is None or not np.isfinite(seconds) or seconds < 0:
+        return "-"
+    s = int(seconds)
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
 def _iso(unix: float) -> str:
     try:
         return datetime.fromtimestamp(unix, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
@@ -587,18 +778,50 @@ def _iso(unix: float) -> str:
 
 # ---- rendering ----------------------------------------------------------------------------------
 _STATUS_STYLE = {layout.STATUS_COMPLETED: "bold green", layout.STATUS_RUNNING: "bold cyan", layout.STATUS_CRASHED: "bold red",
+                 layout.STATUS_WAITING: "bold magenta",
                  layout.STATUS_ABORTED: "bold red", layout.STATUS_FAILED: "bold red"}
-_OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan"}
+_OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan",
+                  layout.OUTCOME_RECORDED: "blue"}
 
 
-def render_summary(summary: RunSummary, console: Console, max_events: int = 40) -> None:
-    """Print the run as rich tables: header, instruments, streams, steps, the last ``max_events``
-    events with counts by kind."""
+def _identity_rows(summary: RunSummary) -> list[tuple[str, Text | str]]:
+    """Header rows ``unit`` (serial, part, revision) and ``station``; ``-`` when not recorded."""
+    u = summary.identity
+    unit = u.get(layout.ATTR_UNIT_SERIAL, "") or "-"
+    more = [f"{label} {u[key]}" for label, key in (("part", layout.ATTR_UNIT_PART), ("revision", layout.ATTR_UNIT_REVISION)) if u.get(key)]
+    return [("unit", ", ".join([unit, *more])), ("station", u.get(layout.ATTR_STATION, "") or "-")]
+
+
+def _render_instrument_identity(summary: RunSummary, console: Console) -> None:
+    """When the lab config declared any: each instrument's reported and declared serial and
+    firmware, and its calibration due date (``OVERDUE`` if before the run's start date)."""
+    declared = {n: i for n, i in summary.instrument_identity.items() if i.config_serial or i.config_firmware or i.calibration_due}
+    if not declared:
+        return
+    t = Table(title="Instrument identity (reported / lab config)")
+    for col in ("name", "serial", "firmware", "calibration due"):
+        t.add_column(col)
+    for name, i in declared.items():
+        due = Text(i.calibration_due or "-")
+        if i.calibration_overdue:
+            due = Text(f"{i.calibration_due} OVERDUE", style="bold red")
+            if i.overdue_confirmation:
+                due.append(f" confirmed: {i.overdue_confirmation}", style="yellow")
+        t.add_row(Text(name), Text(f"{i.serial or '-'} / {i.config_serial or '-'}"),
+                  Text(f"{i.firmware or '-'} / {i.config_firmware or '-'}"), due)
+    console.print(t)
+
+
+def render_summary(summary: RunSummary, console: Console, max_events: int = 40, traffic: bool = False) -> None:
+    """Print the run as rich tables: header (status ``waiting`` while a live run waits for the
+    operator), instruments, streams, steps, checks (value with units, limits, outcome), the
+    instrument traffic summarised per instrument, and the last ``max_events`` other events with
+    counts by kind (``traffic``: list the ``command``/``reply`` events too)."""
     a = summary.attrs
     head = Table.grid(padding=(0, 2))
     head.add_column(style="bold")
     head.add_column()
-    status = Text(summary.status, style=_STATUS_STYLE.get(summary.status, "bold"))
+    status = Text(summary.live_status, style=_STATUS_STYLE.get(summary.live_status, "bold"))
     if summary.status_detail:
         status.append(f"  {summary.status_detail}", style="dim" if summary.status == layout.STATUS_RUNNING else "red")
     rows: list[tuple[str, Text | str]] = [
@@ -613,6 +836,7 @@ def render_summary(summary: RunSummary, console: Console, max_events: int = 40) 
         ("software", f"bench {a.get(layout.ATTR_SOFTWARE_VERSION, '')}, run-file format {a.get(layout.ATTR_FORMAT_VERSION, '')}"),
         ("config", str(a.get(layout.ATTR_CONFIG_PATH, ""))),
     ]
+    rows += _identity_rows(summary)
     if summary.abort_reason:
         rows.append(("abort reason", Text(summary.abort_reason, style="red")))
     for w in summary.warnings:
@@ -620,46 +844,61 @@ def render_summary(summary: RunSummary, console: Console, max_events: int = 40) 
     for k, v in rows:
         head.add_row(k, v if isinstance(v, Text) else Text(v))
     console.print(head)
+    _render_instrument_identity(summary, console)
+
+    def show(headers: list[str], rows: list[list[str | Text]], title: str, prose: tuple[int, ...] = (), key: int = 1) -> None:
+        for t in fit_tables(headers, rows, console.width, title=title, key=key, prose=prose):
+            console.print(t)
 
     if summary.instruments:
-        t = Table(title="Instruments")
-        t.add_column("name")
-        t.add_column("identity")
-        for name, info in summary.instruments.items():
-            t.add_row(Text(name), Text(", ".join(f"{k}={v}" for k, v in info.items())))
-        console.print(t)
+        show(["name", "identity"], [[name, ", ".join(f"{k}={v}" for k, v in info.items())] for name, info in summary.instruments.items()],
+             "Instruments", prose=(1,))
 
     if summary.streams:
-        t = Table(title="Streams")
-        for col, just in (("stream", "left"), ("rows", "right"), ("time span s", "right"), ("rate Hz", "right"), ("columns (units)", "left")):
-            t.add_column(col, justify=just)  # type: ignore[arg-type]
+        rows = []
         for s in summary.streams:
             span = f"{s.t_start_s:.3f} .. {s.t_end_s:.3f}" if s.t_start_s is not None and s.t_end_s is not None else "-"
             rate = f"{s.rate_hz:.2f}" if s.rate_hz is not None else "-"
             cols = ", ".join(f"{n}{list(s.shapes[n]) if s.shapes.get(n) else ''} ({u})" for n, u in s.columns.items())
-            t.add_row(Text(s.key), str(s.rows), span, rate, Text(cols))
-        console.print(t)
+            rows.append([s.key, str(s.rows), span, rate, cols])
+        show(["stream", "rows", "time span s", "rate Hz", "columns (units)"], rows, "Streams", prose=(4,))
 
     if summary.steps:
-        t = Table(title="Steps")
-        for col, just in (("#", "right"), ("step", "left"), ("type", "left"), ("outcome", "left"), ("duration s", "right"), ("detail", "left")):
-            t.add_column(col, justify=just)  # type: ignore[arg-type]
-        for s in summary.steps:
-            d = s.duration_s
-            t.add_row(
-                str(s.index + 1), Text(s.name), Text(s.type), Text(s.outcome, style=_OUTCOME_STYLE.get(s.outcome, "")),
-                f"{d:.1f}" if d is not None else "-", Text(s.detail),
-            )
-        console.print(t)
+        show(["#", "step", "type", "outcome", "duration s", "detail"],
+             [[str(s.index + 1), s.name, s.type, Text(s.outcome, style=_OUTCOME_STYLE.get(s.outcome, "")),
+               f"{s.duration_s:.1f}" if s.duration_s is not None else "-", s.detail] for s in summary.steps],
+             "Steps", prose=(1, 5))
 
-    n = len(summary.events)
-    shown = summary.events[-max_events:] if max_events > 0 else []
-    counts = ", ".join(f"{k} {v}" for k, v in sorted(summary.event_counts.items()))
-    t = Table(title=f"Events (last {len(shown)} of {n}; {counts or 'none'})")
-    for col, just in (("t s", "right"), ("kind", "left"), ("source", "left"), ("step", "right"), ("message", "left"), ("data", "left")):
-        t.add_column(col, justify=just)  # type: ignore[arg-type]
+    checks = check_results(summary)
+    if checks:
+        rows = []
+        for c in checks:
+            value, units = display_value(c.statistic, c.value, c.units)
+            rows.append([str(c.step + 1), c.name, c.signal, c.statistic, c.window, "-" if value is None else f"{value:.6g}", units,
+                         describe_limits(c), Text(c.outcome, style=_OUTCOME_STYLE.get(c.outcome, ""))])
+        show(["#", "check", "signal", "statistic", "window", "value", "units", "limits", "outcome"], rows,
+             f"Checks: {checks_verdict(check_counts(c.outcome for c in checks))}", prose=(7,), key=2)
+
+    if summary.traffic:
+        show(["instrument traffic"], [[tr.describe()] for tr in summary.traffic.values()],
+             "Instrument traffic (command and reply events, kept for replay; --traffic lists them)", prose=(0,))
+
+    listed = summary.events if traffic else summary.meaningful_events
+    n = sum(summary.event_counts.values()) if traffic else sum(
+        v for k, v in summary.event_counts.items() if k not in layout.TRAFFIC_EVENT_KINDS)
+    shown = listed[-max_events:] if max_events > 0 else []
+    counts = ", ".join(f"{k} {v:,}" for k, v in sorted(summary.event_counts.items()))
+    what = "events" if traffic else "events other than instrument traffic"
+    rows = []
     for e in shown:
-        data = e.data[:16].hex(" ") + (" …" if len(e.data) > 16 else "") if e.data else ""
-        style = "red" if e.kind in ("error", "fault", "abort") else ""
-        t.add_row(f"{e.t_s:.3f}", Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "", Text(e.message), data)
-    console.print(t)
+        row = [f"{e.t_s:.3f}", Text(e.kind, style="red" if e.kind in ("error", "fault", "abort") else ""), e.source,
+               str(e.step + 1) if e.step >= 0 else "", e.message]
+        if traffic:  # the frames' bytes (the other events' data is JSON for programs: --json, replay)
+            row.append(e.data[:EVENT_DATA_SHOWN].hex(" ") + (f" (+{len(e.data) - EVENT_DATA_SHOWN} B)" if len(e.data) > EVENT_DATA_SHOWN else ""))
+        rows.append(row)
+    show(["t s", "kind", "source", "step", "message"] + (["data"] if traffic else []), rows,
+         f"Events (last {len(shown)} of {n:,} {what}; {counts or 'none'})", prose=(4, 5))
+
+
+EVENT_DATA_SHOWN = 16
+"""Bytes of an event's data ``bench inspect --traffic`` shows (in hex), the rest counted."""

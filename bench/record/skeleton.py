@@ -11,6 +11,7 @@ import getpass
 import socket
 import time
 from datetime import datetime
+from typing import Mapping
 
 import h5py
 import numpy as np
@@ -33,9 +34,11 @@ def write_skeleton(
     operator: str | None,
     software_version: str,
     started: datetime,
+    identity: Mapping[str, str] | None = None,
 ) -> None:
     """Write everything a run file holds from its creation: root attributes (``status`` running,
-    ``ended_utc`` and ``abort_reason`` empty), texts, the empty instrument and stream groups, the
+    ``ended_utc`` and ``abort_reason`` empty; the ``identity`` attributes given, see
+    :data:`layout.IDENTITY_ATTRS`), texts, the empty instrument and stream groups, the
     empty event datasets and the heartbeat ([now, 0 s]). ``operator`` defaults to the login name."""
     a = f.attrs
     a[layout.ATTR_FORMAT_VERSION] = np.int64(layout.FORMAT_VERSION)
@@ -50,6 +53,8 @@ def write_skeleton(
     a[layout.ATTR_ENDED_UTC] = ""
     a[layout.ATTR_STATUS] = layout.STATUS_RUNNING
     a[layout.ATTR_ABORT_REASON] = ""
+    for key, value in (identity or {}).items():
+        a[key] = str(value)
     write_text(f.create_group(layout.PROCEDURE), procedure_text)
     write_text(f.create_group(layout.CONFIG), config_text)
     f.create_group(layout.INSTRUMENTS)

@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 from types import TracebackType
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Mapping
 
 import h5py
 import numpy as np
@@ -98,16 +98,22 @@ class RunRecorder:
         started_utc: datetime | None = None,
         flush_interval_s: float = 1.0,
         wall_clock: Callable[[], float] = time.monotonic,
+        identity: Mapping[str, str] | None = None,
     ) -> "RunRecorder":
         """Create ``runs_dir/<run_file_name>`` (``_1``, ``_2`` … on collision; never overwrites).
 
         ``operator`` defaults to the login name; ``started_utc`` to now. ``flush_interval_s`` is
         wall time (s) between flushes triggered by :meth:`tick`, measured with ``wall_clock``
-        (seconds, monotonic). Raises :class:`DestinationError` if the directory cannot take the
-        file, :class:`RecorderError` if writing it fails, ``ValueError`` for a bad ``mode``.
+        (seconds, monotonic). ``identity``: root attributes naming the unit under test and the
+        station (keys of :data:`~bench.record.layout.IDENTITY_ATTRS`; only those given are written).
+        Raises :class:`DestinationError` if the directory cannot take the file,
+        :class:`RecorderError` if writing it fails, ``ValueError`` for a bad ``mode`` or identity key.
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        unknown = sorted(set(identity or {}) - set(layout.IDENTITY_ATTRS))
+        if unknown:
+            raise ValueError(f"identity keys must be among {', '.join(layout.IDENTITY_ATTRS)}, got {', '.join(unknown)}")
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s!r}")
         started = layout.as_utc(started_utc or datetime.now(timezone.utc))
@@ -115,7 +121,7 @@ class RunRecorder:
         try:
             write_skeleton(f, procedure_name=procedure_name, procedure_text=procedure_text, procedure_path=procedure_path,
                            config_text=config_text, config_path=config_path, mode=mode, operator=operator,
-                           software_version=software_version, started=started)
+                           software_version=software_version, started=started, identity=identity)
         except Exception as exc:  # noqa: BLE001
             try:
                 f.close()

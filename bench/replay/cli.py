@@ -11,15 +11,30 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rich.console import Console
+from typing import TYPE_CHECKING
 
+from bench.cli_common import epilog
 from bench.errors import EXIT_FAILED, EXIT_OK
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 
 def add_replay_parser(subparsers) -> argparse.ArgumentParser:
-    rp = subparsers.add_parser("replay", help="re-execute a recorded run against its recorded instrument answers and compare")
+    """Add ``bench replay`` to the CLI's subparsers."""
+    rp = subparsers.add_parser(
+        "replay", help="re-execute a recorded run against its recorded instrument answers and compare",
+        description="Re-execute a recorded run (dry-run or hardware) with the same drivers against backends that "
+                    "answer from the recording, and compare commands, step outcomes, checks and streams "
+                    "(docs/replay.md). The replay is recorded too, to RUNS_DIR.",
+        epilog=epilog("bench replay runs/20261123T101500Z_startup_profile.h5",
+                      "bench replay RUN.h5 --procedure procedures/startup_profile.yaml --runs-dir /tmp/replays",
+                      ok="the replay matches the recording",
+                      failed="it diverged: the first divergence (step, instrument, expected vs got bytes) and a count of the rest",
+                      bad="the file cannot be replayed (not a run file, no recorded exchanges, bad --procedure): one line"))
     rp.add_argument("run_file", type=Path, help="run file (.h5) from bench run, with --sim or on hardware")
-    rp.add_argument("--procedure", type=Path, default=None, help="replay this procedure instead of the one stored in the run file")
+    rp.add_argument("--procedure", type=Path, default=None,
+                    help="replay this procedure instead of the one stored in the run file (default: the stored one)")
     rp.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where the replay's own run file goes (default: runs/)")
     return rp
 

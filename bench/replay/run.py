@@ -28,7 +28,9 @@ class ReplayOperator(Operator):
     def can_answer(self, key: str, simulated: bool) -> bool:
         return True
 
-    def ask(self, key: str, text: str, simulated: bool) -> tuple[str, str]:
+    def ask(self, key: str, text: str, simulated: bool, **_waiting: object) -> tuple[str, str]:
+        """The next recorded answer to ``key`` (``_waiting``: the live prompt's keepalive and
+        deadline, unused: recorded answers come at once)."""
         for i, (k, answer, source) in enumerate(self._queue):
             if k == key:
                 del self._queue[i]

@@ -6,8 +6,8 @@ turns it into an inline PNG and closes it. Long series are reduced before plotti
 (:func:`envelope`: at most :data:`MAX_POINTS` points per line, keeping every bin's minimum and
 maximum so spikes stay visible).
 
-Units: run time in s (axes shown in s, min or h, see :func:`time_axis`), rates in deg/s,
-temperatures in °C, pressure in Torr, Allan deviation in deg/s.
+Units: run time in s, shown on the axes as H:MM:SS like everywhere in the report (:func:`time_axis`),
+rates in deg/s, temperatures in °C, pressure in Torr, Allan deviation in deg/s.
 """
 
 from __future__ import annotations
@@ -18,7 +18,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.report.html import plt  # Agg backend selected there, before pyplot is imported
+from matplotlib.ticker import FuncFormatter, MultipleLocator
+
+from bench.report.html import hms, plt  # Agg backend selected there, before pyplot is imported
 
 FIG_WIDTH_IN = 9.6
 """Figure width (inches); at the report's 110 dpi that is 1056 px, under the 1100 px page width."""
@@ -106,13 +108,28 @@ def binned_mean(x: np.ndarray, y: np.ndarray, bins: int = 60) -> tuple[np.ndarra
     return (0.5 * (edges[:-1] + edges[1:]))[keep], sums[keep] / counts[keep]
 
 
+TIME_LABEL = "run time (h:mm:ss)"
+"""Label of every run-time axis."""
+TIME_TICK_STEPS_S = (1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400)
+"""Run-time tick spacings (s) that read well as H:MM:SS."""
+MAX_TIME_TICKS = 8
+"""Most run-time ticks on an axis."""
+
+
 def time_axis(span_s: float) -> tuple[float, str]:
-    """How to show run times spanning ``span_s`` seconds: (divisor, axis label)."""
-    if span_s > 5 * 3600:
-        return 3600.0, "run time (h)"
-    if span_s > 900:
-        return 60.0, "run time (min)"
-    return 1.0, "run time (s)"
+    """How to show run times spanning ``span_s`` seconds: (tick spacing in s, axis label). Ticks are
+    the shortest spacing of :data:`TIME_TICK_STEPS_S` giving at most :data:`MAX_TIME_TICKS` ticks,
+    labelled H:MM:SS."""
+    for step in TIME_TICK_STEPS_S:
+        if span_s / step <= MAX_TIME_TICKS:
+            return float(step), TIME_LABEL
+    return float(math.ceil(span_s / MAX_TIME_TICKS / 86400) * 86400), TIME_LABEL
+
+
+def _set_time_axis(ax: Any, step_s: float) -> None:
+    """Run-time ticks every ``step_s`` seconds, labelled H:MM:SS."""
+    ax.xaxis.set_major_locator(MultipleLocator(step_s))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: hms(x)))
 
 
 def _span(series: Sequence[Series]) -> float:
@@ -135,10 +152,12 @@ def _figure(nrows: int, ncols: int = 1, height_in: float | None = None, **kw: An
     return fig, axes
 
 
-def _plot_series(ax: Any, series: Sequence[Series], scale: float) -> None:
+def _plot_series(ax: Any, series: Sequence[Series], step_s: float) -> None:
+    """Lines of ``series`` against run time, ticks every ``step_s`` seconds (H:MM:SS)."""
     for s in series:
         t, y = envelope(s.t, s.y)
-        ax.plot(t / scale, y, s.style, lw=1.0, label=s.label)
+        ax.plot(t, y, s.style, lw=1.0, label=s.label)
+    _set_time_axis(ax, step_s)
 
 
 # ---- time series ----------------------------------------------------------------------------------
@@ -147,18 +166,18 @@ def fig_environment(temperatures: Sequence[Series], pressure: Series | None, tit
     rows = (1 if temperatures else 0) + (1 if pressure is not None else 0)
     if rows == 0:
         raise ValueError("nothing to plot")
-    scale, xlabel = time_axis(_span([*temperatures, *([pressure] if pressure else [])]))
+    step, xlabel = time_axis(_span([*temperatures, *([pressure] if pressure else [])]))
     fig, axes = _figure(rows, sharex=True)
     r = 0
     if temperatures:
         ax = axes[r, 0]
-        _plot_series(ax, temperatures, scale)
+        _plot_series(ax, temperatures, step)
         _finish(ax, xlabel if rows == 1 else "", "temperature (°C)", title)
         r += 1
     if pressure is not None:
         ax = axes[r, 0]
         ok = np.isfinite(pressure.y) & (pressure.y > 0)
-        _plot_series(ax, [Series(pressure.label, pressure.t[ok], pressure.y[ok])], scale)
+        _plot_series(ax, [Series(pressure.label, pressure.t[ok], pressure.y[ok])], step)
         ax.set_yscale("log")
         _finish(ax, xlabel, "pressure (Torr)", "" if temperatures else title)
     fig.tight_layout()
@@ -170,15 +189,15 @@ def fig_rates(gyro: Sequence[Series], reference: Sequence[Series], title: str = 
     rows = (1 if gyro else 0) + (1 if reference else 0)
     if rows == 0:
         raise ValueError("nothing to plot")
-    scale, xlabel = time_axis(_span([*gyro, *reference]))
+    step, xlabel = time_axis(_span([*gyro, *reference]))
     fig, axes = _figure(rows, sharex=True)
     r = 0
     if gyro:
-        _plot_series(axes[r, 0], gyro, scale)
+        _plot_series(axes[r, 0], gyro, step)
         _finish(axes[r, 0], xlabel if rows == 1 else "", "gyro output (deg/s)", f"{title}: sensor outputs")
         r += 1
     if reference:
-        _plot_series(axes[r, 0], reference, scale)
+        _plot_series(axes[r, 0], reference, step)
         _finish(axes[r, 0], xlabel, "rate (deg/s)", "Reference motion (table / bench)")
     fig.tight_layout()
     return fig

@@ -9,6 +9,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import math
 from dataclasses import dataclass
 from typing import Any, Iterable
 
@@ -24,7 +25,7 @@ table{border-collapse:collapse;margin:.5em 0 1em 0;font-size:.92em}
 th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right}th{background:#f3f3f3}
 td.l,th.l{text-align:left}.pass{color:#060;font-weight:600}.fail{color:#b00;font-weight:600}
 .warn{color:#a60;font-weight:600}
-.note{color:#555;font-size:.9em}figure{margin:1em 0}figcaption{color:#555;font-size:.9em}
+.note{color:#555;font-size:.9em}.verdict{font-size:1.6em;margin:.3em 0}figure{margin:1em 0}figcaption{color:#555;font-size:.9em}
 img{max-width:100%}
 """
 
@@ -49,6 +50,15 @@ def fmt(value: Any, digits: int = 4) -> str:
     if isinstance(value, float):
         return f"{value:.{digits}g}"
     return "" if value is None else str(value)
+
+
+def hms(seconds: float | None) -> str:
+    """A run time or duration ``seconds`` (s) as ``H:MM:SS``, rounded to the second (the report's one
+    presentation of run time); ``-`` for None or NaN."""
+    if seconds is None or not math.isfinite(seconds):
+        return "-"
+    s = int(round(seconds))
+    return f"{'-' if s < 0 else ''}{abs(s) // 3600}:{abs(s) // 60 % 60:02d}:{abs(s) % 60:02d}"
 
 
 def table(headers: list[str], rows: Iterable[Iterable[Any]], title: str = "", left: int = 1) -> str:

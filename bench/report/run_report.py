@@ -1,21 +1,20 @@
 """``bench report RUN.h5 -o report.html``: one self-contained HTML page per run, with inline PNG
 figures, that a technician attaches to an acceptance record (``docs/report.md``).
 
-Sections (a section whose data the run lacks shows a one-line note instead):
+The page opens with the verdict (passed / failed / no verdict / incomplete) and the checks, then the
+unit under test and the run, steps, instruments and streams, and the sections that apply to the run:
+temperature and pressure, rates, bias vs temperature (``bench.analysis.thermal_cal``, only with a
+temperature sweep), rate transfer (``bench.analysis.rate_transfer``, only with rate steps), noise
+(``bench.analysis.noise_cal``, only over a static window, :mod:`bench.report.static`), pre/post
+comparison (checks with a ``reference``) and the calibration tables. A section that does not apply
+is left out and listed once at the end with the reason.
 
-1. summary (procedure, status with abort reason, mode, operator, host, software, times, checks),
-2. instruments and recorded streams, 3. steps with outcomes, 4. temperature and pressure,
-5. rates, 6. bias vs temperature (``bench.analysis.thermal_cal``), 7. rate transfer
-(``bench.analysis.rate_transfer``), 8. Allan deviation (``bench.analysis.noise_cal``),
-9. pre/post comparison (checks with a ``reference``, e.g. pre/post-vibe functional tests),
-10. calibration tables, 11. pass/fail checks.
+An analysis that applies but is not installed (``ImportError``) or finds the run lacking
+(:class:`~bench.errors.InputError`) becomes a note in its section; any other exception propagates. An
+unreadable run file raises :class:`InputError` (exit code 2).
 
-The analyses of sections 6-8 are optional: a method that is not installed (``ImportError``) or does
-not apply to the run (:class:`~bench.errors.InputError`) becomes a note; any other exception
-propagates. An unreadable run file raises :class:`InputError` (exit code 2).
-
-Units: run times in s since the start of the run, rates in deg/s, temperatures in °C, pressure in
-Torr; scale-factor errors are shown in %.
+Units: run times and durations as H:MM:SS (figure axes too), rates in deg/s, temperatures in °C,
+pressure in Torr; scale-factor errors are shown in %.
 """
 
 from __future__ import annotations
@@ -37,9 +36,11 @@ from bench import __version__
 from bench.analysis.result import CalibrationResult
 from bench.errors import InputError
 from bench.record import layout
+from bench.record.checks import CheckResult, check_results, display_value, signal_units  # noqa: F401 (re-exported)
 from bench.record.reader import RunSummary, read_run_summary, read_stream
 from bench.report import figures as F
-from bench.report.html import Cell, esc, figure_png, fmt, page, table
+from bench.report import static as S
+from bench.report.html import Cell, esc, figure_png, fmt, hms, page, table
 
 ANALYSES: dict[str, tuple[str, str]] = {
     "thermal": ("bench.analysis.thermal_cal", "thermal calibration"),
@@ -57,11 +58,21 @@ BOARD_TEMP_LABELS = ("board temp: gyro die", "board temp: accel die", "board tem
 """Labels of the ACS board's three temperature channels (docs/run-file.md)."""
 ZERO_RATE_DPS = 1e-9
 """A reference rate at most this large (deg/s) counts as zero (thermal fit samples)."""
+TEMP_SWEEP_MIN_C = 5.0
+"""Smallest span (°C) of the sensor temperature, over the samples the thermal fit uses, that counts
+as a temperature sweep: ten times the 0.5 °C a stable temperature may wander
+(:data:`bench.report.static.TEMP_DRIFT_MAX_C`). Over less, a cubic bias polynomial is not determined
+(its coefficients come out larger than their standard errors allow to read)."""
+MAX_WINDOW_ROWS = 40
+"""Most recording windows listed in the noise section's window table (the rest are counted)."""
 
 _WINDOW_RE = re.compile(r"rows in window '(?P<name>.*)'$")
 _RATE_SUFFIX = re.compile(r"(?P<rate>[+-](?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?)$")
 _OUTCOME_CLASS = {"passed": "pass", "done": "pass", "completed": "pass", "failed": "fail", "aborted": "fail",
-                  "crashed": "fail", "interrupted": "warn", "running": "warn"}
+                  "crashed": "fail", "interrupted": "warn", "running": "warn", "recorded": ""}
+NO_VERDICT = "recorded"
+"""Outcome of a check without limits (and without a reference): its value is recorded, it gives no
+verdict. Runners before this outcome existed wrote ``passed``; the report shows those as recorded too."""
 
 
 # ---- public API -----------------------------------------------------------------------------------
@@ -77,34 +88,73 @@ def write_report(run_path: str | Path, out_path: str | Path) -> Path:
     return out
 
 
+@dataclass
+class Section:
+    """One section of the report: ``title``, and its ``html`` when it applies to the run, else
+    ``why`` it does not (then it is only listed under "Not applicable")."""
+
+    title: str
+    html: str = ""
+    why: str = ""
+
+
 def build_report(run_path: str | Path) -> str:
     """The whole report of the run file ``run_path`` as one HTML document (figures inlined)."""
     path = Path(run_path)
     summary = read_run_summary(path)
     data = load_run_data(path, summary)
     ds, ds_note = _load_dataset(path, summary)
-    results = {key: run_analysis(module, ds, ds_note, what) for key, (module, what) in ANALYSES.items()}
-
-    def analysis(key: str, render: Callable[[CalibrationResult], str]) -> str:
-        res = results[key]
-        return render(res) if isinstance(res, CalibrationResult) else note(res)
-
-    sections = [
-        ("1. Summary", section_summary(summary)),
-        ("2. Instruments", section_instruments(summary)),
-        ("3. Steps", section_steps(summary)),
-        ("4. Temperature and pressure", section_environment(data)),
-        ("5. Rates", section_rates(data)),
-        ("6. Bias vs temperature", analysis("thermal", lambda r: section_thermal(r.json, ds))),
-        ("7. Rate transfer", analysis("rate_transfer", lambda r: section_rate_transfer(r.json))),
-        ("8. Allan deviation", analysis("noise", lambda r: section_allan(r.json))),
-        ("9. Pre/post comparison", section_pre_post(summary, data)),
-        ("10. Calibration tables", section_tables(results)),
-        ("11. Pass/fail checks", section_checks(summary)),
-    ]
+    sections = report_sections(summary, data, ds, ds_note)
+    shown = [(f"{i}. {s.title}", s.html) for i, s in enumerate((s for s in sections if not s.why), start=1)]
+    omitted = [s for s in sections if s.why]
+    if omitted:
+        shown.append(("Not applicable to this run", section_not_applicable(omitted)))
     name = str(summary.attrs.get(layout.ATTR_PROCEDURE_NAME, "")) or path.stem
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-    return page(f"Run report: {name}", sections, subtitle=f"{path.name}; report generated {generated} by bench {__version__}")
+    return page(f"Run report: {name}", shown, subtitle=f"{path.name}; report generated {generated} by bench {__version__}")
+
+
+def report_sections(summary: RunSummary, data: "RunData", ds: Any, ds_note: str) -> list[Section]:
+    """Every section in report order, each rendered only when it applies (analyses run only then)."""
+    checks = check_results(summary)
+    results: dict[str, CalibrationResult | str] = {}
+
+    def analysis(key: str, data_set: Any, render: Callable[[CalibrationResult], str]) -> str:
+        module, what = ANALYSES[key]
+        res = results[key] = run_analysis(module, data_set, ds_note, what)
+        return render(res) if isinstance(res, CalibrationResult) else note(res)
+
+    def section(title: str, why: str, render: Callable[[], str]) -> Section:
+        return Section(title, why=why) if why else Section(title, render())
+
+    board_why = "" if ds is not None else ds_note
+    out = [
+        Section("Verdict and checks", section_verdict(summary, checks)),
+        Section("Unit under test and run", section_summary(summary)),
+        section("Steps", "" if summary.steps else "no steps were executed.", lambda: section_steps(summary, checks)),
+        section("Instruments and streams", "" if summary.instruments or summary.streams else "no instruments or streams recorded.",
+                lambda: section_instruments(summary)),
+        section("Temperature and pressure", "" if data.temperatures or data.pressure is not None else
+                "no temperature or pressure recorded (no chamber, thermocouple or board stream).", lambda: section_environment(data)),
+        section("Rates", "" if data.gyro or data.reference else "no gyro output or table rate recorded.", lambda: section_rates(data)),
+        section("Bias vs temperature", board_why or why_no_sweep(ds),
+                lambda: analysis("thermal", ds, lambda r: section_thermal(r.json, ds))),
+        section("Rate transfer", board_why or why_no_rate_steps(data),
+                lambda: analysis("rate_transfer", ds, lambda r: section_rate_transfer(r.json))),
+        section("Noise (Allan deviation)", board_why, lambda: section_noise(data.window_checks, ds, analysis)),
+        section("Pre/post comparison", "" if any(c.reference for c in checks) else
+                "no check compares with a reference (no pre/post functional tests).", lambda: section_pre_post(summary, data)),
+    ]
+    ran = {k: r for k, r in results.items() if isinstance(r, CalibrationResult) and (r.tables or r.notes)}
+    out.append(section("Calibration tables", "" if ran else "no analysis ran on this run, or none returned a table.",
+                       lambda: section_tables(ran)))
+    return out
+
+
+def section_not_applicable(omitted: list[Section]) -> str:
+    """The sections left out, one line each: "<section>: not applicable: <why>"."""
+    items = "".join(f'<li class="note">{esc(s.title)}: not applicable: {esc(s.why)}</li>' for s in omitted)
+    return f'<ul id="not-applicable">{items}</ul>'
 
 
 def run_analysis(module: str, ds: Any, ds_note: str, what: str = "") -> CalibrationResult | str:
@@ -131,33 +181,42 @@ def note(text: str) -> str:
 # ---- data ---------------------------------------------------------------------------------------
 @dataclass
 class Window:
-    """A recording window (from its record step): ``name``, run-time span ``t0``..``t1`` (s), the
-    commanded rate parsed from the name (deg/s, ``None`` for zero references and others) and the
-    mean board gyro output over the span (deg/s per axis, ``None`` without board data)."""
+    """A recording window of the board: ``name`` (a record step's window, else ``step N (name)`` for
+    another step that recorded, e.g. ``wait_until_stable`` with ``record``), run-time span
+    ``t0``..``t1`` (s), the commanded rate parsed from the name (deg/s, ``None`` for zero references
+    and others), the mean board gyro output over the span (deg/s per axis, ``None`` without board
+    data), the board ``samples`` in it and the ``step_type`` that recorded it."""
 
     name: str
     t0: float
     t1: float
     rate_dps: float | None = None
     gyro_mean_dps: np.ndarray | None = None
+    samples: int = 0
+    step_type: str = "record"
 
 
 @dataclass
 class RunData:
-    """What the time-series sections plot, already reduced (:func:`figures.envelope`)."""
+    """What the time-series sections plot, already reduced (:func:`figures.envelope`), the recording
+    windows and whether each is static (:mod:`bench.report.static`)."""
 
     temperatures: list[F.Series] = field(default_factory=list)
     pressure: F.Series | None = None
     gyro: list[F.Series] = field(default_factory=list)
     reference: list[F.Series] = field(default_factory=list)
     windows: list[Window] = field(default_factory=list)
+    window_checks: list[S.WindowCheck] = field(default_factory=list)
 
 
 def load_run_data(path: Path, summary: RunSummary) -> RunData:
     """Read the monitors and the board stream of the run and reduce them for plotting; window means
-    are computed from the full-rate board data first."""
+    and the static test of every window are computed from the full-rate data first."""
     streams = {s.key: s for s in summary.streams}
     data = RunData()
+    temps: list[S.Trace] = []  # temperatures that make a window not static (°C)
+    rates: list[S.Trace] = []  # table rates (deg/s)
+    angles: list[S.Trace] = []  # table tilt and bench angle (deg)
 
     def series(label: str, t: np.ndarray, y: np.ndarray) -> F.Series:
         return F.Series(label, *F.envelope(*F.break_gaps(t, y)))
@@ -167,12 +226,34 @@ def load_run_data(path: Path, summary: RunSummary) -> RunData:
         for col, label in (("air_temp", "chamber air"), ("mount_temp", "chamber mount")):
             if col in mon:
                 data.temperatures.append(series(label, mon["time"], mon[col]))
+        if "air_temp" in mon:
+            temps.append(S.Trace("chamber air temperature", np.asarray(mon["time"], float), np.asarray(mon["air_temp"], float)))
         if "pressure" in mon:
             data.pressure = series("chamber pressure", mon["time"], mon["pressure"])
     if THERMOCOUPLE_MONITOR in streams and streams[THERMOCOUPLE_MONITOR].rows:
         mon = read_stream(path, THERMOCOUPLE_MONITOR)
         for col in (c for c in mon if c != "time"):
             data.temperatures.append(series(f"thermocouple {col}", mon["time"], mon[col]))
+    if TABLE_MONITOR in streams and streams[TABLE_MONITOR].rows:
+        mon = read_stream(path, TABLE_MONITOR)
+        tm = np.asarray(mon["time"], dtype=float)
+        if "rate" in mon:
+            data.reference.append(series("rate table rate", tm, mon["rate"]))
+            rates.append(S.Trace("rate table", tm, np.asarray(mon["rate"], dtype=float)))
+        if "tilt" in mon:
+            angles.append(S.Trace("rate table tilt", tm, np.asarray(mon["tilt"], dtype=float)))
+    for key in streams:
+        if key.startswith("stepper_bench") and streams[key].rows:
+            mon = read_stream(path, key)
+            if "angle" in mon and mon["time"].size > 1:
+                t = np.asarray(mon["time"], dtype=float)
+                angle = np.unwrap(np.asarray(mon["angle"], dtype=float), period=360.0)
+                angles.append(S.Trace("stepper bench", t, angle))
+                ok = np.concatenate([[True], np.diff(t) > 0])
+                if ok.sum() > 1:
+                    data.reference.append(series("stepper bench rate (from angle)", t[ok], np.gradient(angle[ok], t[ok])))
+    t = np.zeros(0)
+    gyro = None
     if BOARD in streams and streams[BOARD].rows:
         board = read_stream(path, BOARD)
         t = np.asarray(board["time"], dtype=float)
@@ -181,52 +262,50 @@ def load_run_data(path: Path, summary: RunSummary) -> RunData:
             for k in range(temp.shape[1]):
                 label = BOARD_TEMP_LABELS[k] if k < len(BOARD_TEMP_LABELS) else f"board temp {k}"
                 data.temperatures.append(series(label, t, temp[:, k]))
+            temps.insert(0, S.Trace("sensor temperature", t, temp[:, 0].copy()))
         if "gyro" in board:
             gyro = np.asarray(board["gyro"], dtype=float).reshape(t.size, -1)
             for k in range(min(gyro.shape[1], 3)):
                 data.gyro.append(series(f"gyro {AXES[k]}", t, gyro[:, k]))
-        else:
-            gyro = None
-        data.windows = _windows(summary, t, gyro)
         del board
-    else:
-        data.windows = _windows(summary, np.zeros(0), None)
-    if TABLE_MONITOR in streams and streams[TABLE_MONITOR].rows:
-        mon = read_stream(path, TABLE_MONITOR)
-        if "rate" in mon:
-            data.reference.append(series("rate table rate", mon["time"], mon["rate"]))
-    for key in streams:
-        if key.startswith("stepper_bench") and streams[key].rows:
-            mon = read_stream(path, key)
-            if "angle" in mon and mon["time"].size > 1:
-                t = np.asarray(mon["time"], dtype=float)
-                angle = np.unwrap(np.asarray(mon["angle"], dtype=float), period=360.0)
-                ok = np.concatenate([[True], np.diff(t) > 0])
-                if ok.sum() > 1:
-                    data.reference.append(series("stepper bench rate (from angle)", t[ok], np.gradient(angle[ok], t[ok])))
+    data.windows = _windows(summary, t, gyro)
+    data.window_checks = [S.check_window(w.name, w.t0, w.t1, w.samples, commanded_rate_dps=w.rate_dps, step_type=w.step_type,
+                                         rates=rates, angles=angles, temperatures=temps) for w in data.windows]
     return data
 
 
 def _windows(summary: RunSummary, t: np.ndarray, gyro: np.ndarray | None) -> list[Window]:
-    """Recording windows named by record steps (``... rows in window 'NAME'``) with their means."""
+    """Recording windows with their board samples (``t0 < t <= t1``) and means: the windows named by
+    record steps (``... rows in window 'NAME'``), other steps during which the board recorded (named
+    ``step N (name)``), and, for a board recording without any such window, the whole recording."""
     out = []
     for s in summary.steps:
-        m = _WINDOW_RE.search(s.detail)
-        if not m or s.t_start_s is None or s.t_end_s is None:
+        if s.t_start_s is None or s.t_end_s is None:
             continue
-        w = Window(m.group("name"), float(s.t_start_s), float(s.t_end_s))
-        r = _RATE_SUFFIX.search(w.name)
+        m = _WINDOW_RE.search(s.detail)
+        w = Window(m.group("name") if m else f"step {s.index + 1} ({s.name})", float(s.t_start_s), float(s.t_end_s),
+                   step_type=s.type or "record")
+        i0, i1 = np.searchsorted(t, [w.t0, w.t1], side="right")
+        w.samples = int(i1 - i0)
+        if not m and (w.samples == 0 or w.t1 <= w.t0):
+            continue  # a step that did not record
+        r = _RATE_SUFFIX.search(w.name) if m else None
         if r:
             try:
                 w.rate_dps = float(r.group("rate"))
             except ValueError:
                 pass
-        if gyro is not None and t.size:
-            i0, i1 = np.searchsorted(t, [w.t0, w.t1], side="left")
-            if i1 > i0:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN axis gives NaN: skipped later
-                    w.gyro_mean_dps = np.nanmean(gyro[i0:i1], axis=0)
+        if gyro is not None and i1 > i0:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN axis gives NaN: skipped later
+                w.gyro_mean_dps = np.nanmean(gyro[i0:i1], axis=0)
+        out.append(w)
+    if not out and t.size > 1:
+        w = Window("the whole recording", float(t[0]) - 1e-9, float(t[-1]), samples=int(t.size), step_type="")
+        if gyro is not None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                w.gyro_mean_dps = np.nanmean(gyro, axis=0)
         out.append(w)
     return out
 
@@ -244,16 +323,6 @@ def _load_dataset(path: Path, summary: RunSummary) -> tuple[Any, str]:
 
 
 # ---- formatting helpers ---------------------------------------------------------------------------
-def hms(seconds: float | None) -> str:
-    """``seconds`` (s) as ``H:MM:SS``, or ``S.s s`` under a minute; ``-`` for None or NaN."""
-    if seconds is None or not math.isfinite(seconds):
-        return "-"
-    if abs(seconds) < 60:
-        return f"{seconds:.1f} s"
-    s = int(round(seconds))
-    return f"{'-' if s < 0 else ''}{abs(s) // 3600}:{abs(s) // 60 % 60:02d}:{abs(s) % 60:02d}"
-
-
 def _outcome(text: str) -> Cell:
     return Cell(text, _OUTCOME_CLASS.get(text.lower(), ""))
 
@@ -296,15 +365,98 @@ def _procedure_title(text: str) -> str:
     return str(doc.get("title") or "") if isinstance(doc, dict) else ""
 
 
-# ---- 1-3: summary, instruments, steps -------------------------------------------------------------
+# ---- verdict, unit and run, steps, instruments ---------------------------------------------------
+IDENTITY_LABELS = {layout.ATTR_UNIT_SERIAL: "unit serial", layout.ATTR_UNIT_PART: "unit part",
+                   layout.ATTR_UNIT_REVISION: "unit revision", layout.ATTR_STATION: "station"}
+"""Root attributes naming the unit under test and the station (absent in older files: read as "")."""
+
+
+@dataclass
+class Verdict:
+    """The run's verdict: ``word`` (PASSED, FAILED, NO VERDICT or INCOMPLETE), its CSS class and the
+    ``reasons`` behind it, one sentence each."""
+
+    word: str
+    cls: str
+    reasons: list[str]
+
+
+def verdict(summary: RunSummary, checks: list["CheckResult"]) -> Verdict:
+    """FAILED when a check or another step failed (even in a run that did not finish); else
+    INCOMPLETE when the run did not run to its end (aborted, crashed, still running, or fewer steps
+    executed than planned); else NO VERDICT when no check has limits (none, or only recorded values);
+    else PASSED."""
+    judged = [c for c in checks if c.outcome in ("passed", "failed")]
+    failed = [c for c in judged if c.outcome == "failed"]
+    recorded = [c for c in checks if c.outcome == NO_VERDICT]
+    failed_steps = [s for s in summary.steps if s.type not in ("check", "bit") and s.outcome == "failed"]
+    unfinished = []
+    if summary.status != layout.STATUS_COMPLETED:
+        why = summary.abort_reason or summary.status_detail
+        unfinished.append(f"the run is {summary.status}" + (f": {why}" if why else ""))
+    planned = _procedure_info(summary).get("steps")
+    if isinstance(planned, int) and len(summary.steps) < planned:
+        unfinished.append(f"{len(summary.steps)} of {planned} steps executed")
+    cut = [s for s in summary.steps if s.outcome in ("interrupted", "running", "aborted")]
+    if cut:
+        unfinished.append("step " + ", ".join(f"{s.index + 1} {s.name} {s.outcome}" for s in cut))
+    extra = [f"{len(recorded)} value(s) recorded without limits (no verdict)"] if recorded else []
+    if failed or failed_steps:
+        reasons = [f"{len(failed)} of {len(judged)} checks failed: {', '.join(c.name for c in failed)}"] if failed else []
+        reasons += [f"step {s.index + 1} {s.name} failed: {s.detail}" for s in failed_steps]
+        return Verdict("FAILED", "fail", reasons + unfinished + extra)
+    if unfinished:
+        return Verdict("INCOMPLETE", "warn", unfinished + ([f"{len(judged)} checks passed before that"] if judged else []) + extra)
+    if not judged:
+        return Verdict("NO VERDICT", "warn", ["no check in this run has limits" if checks else "this run has no checks"] + extra)
+    return Verdict("PASSED", "pass", [f"all {len(judged)} checks with limits passed"] + extra)
+
+
+def section_verdict(summary: RunSummary, checks: list["CheckResult"]) -> str:
+    """The verdict with its reasons, then one row per check (and built-in test): name, signal,
+    statistic, window, value with its unit, limits, outcome."""
+    v = verdict(summary, checks)
+    out = f'<p class="verdict {v.cls}" id="verdict">{esc(v.word)}</p>'
+    out += "<ul>" + "".join(f"<li>{esc(r)}</li>" for r in v.reasons) + "</ul>"
+    if not checks:
+        return out
+    rows = []
+    for c in checks:
+        units = signal_units(summary, c.signal)
+        val, u = display_value(c.statistic, c.value, units)
+        lo = display_value(c.statistic, c.minimum, units)[0]
+        hi = display_value(c.statistic, c.maximum, units)[0]
+        value = f"{fmt(val)} {u}".strip() if val is not None else "-"
+        outcome = Cell("recorded (no limits: no verdict)", "") if c.outcome == NO_VERDICT else _outcome(c.outcome)
+        rows.append([c.step + 1, c.name, c.signal, c.statistic, c.window, value, limits_text(lo, hi, u, c.reference), outcome])
+    return out + table(["#", "check", "signal", "statistic", "window", "value", "limits", "outcome"], rows, left=5)
+
+
+def limits_text(lo: float | None, hi: float | None, units: str, reference: str | None = None) -> str:
+    """Limits of a check in display units: ``lo … hi units``, ``≥ lo``, ``≤ hi``, ``none``; a
+    comparison with an earlier check names it (its tolerance is not recorded in the run file)."""
+    u = f" {units}" if units else ""
+    if reference:
+        return f"vs {reference} (tolerance: procedure parameters)"
+    if lo is not None and hi is not None:
+        return f"{fmt(lo)} … {fmt(hi)}{u}"
+    if lo is not None:
+        return f"≥ {fmt(lo)}{u}"
+    if hi is not None:
+        return f"≤ {fmt(hi)}{u}"
+    return "none"
+
+
 def section_summary(summary: RunSummary) -> str:
-    """Procedure, status (coloured, with the abort reason), mode, operator, host, software, start/end
-    UTC, duration (run time; wall time too when the clock was virtual), run file, check counts."""
+    """The unit under test (serial, part, revision) and the station, then the run: procedure, status
+    (coloured, with the abort reason), mode, operator, host, software, start/end UTC, duration (run
+    time; wall time too when the clock was virtual), run file, steps executed of planned."""
     a = summary.attrs
     info = _procedure_info(summary)
     status = summary.status.upper()
     title = _procedure_title(summary.procedure_text)
-    rows: list[list[Any]] = [
+    rows: list[list[Any]] = [[label, str(a.get(key, "") or "") or Cell("not recorded", "note")] for key, label in IDENTITY_LABELS.items()]
+    rows += [
         ["procedure", f"{a.get(layout.ATTR_PROCEDURE_NAME, '')}" + (f": {title}" if title else "")],
         ["procedure file", str(a.get(layout.ATTR_PROCEDURE_PATH, ""))],
         ["status", Cell(status + (f": {summary.status_detail}" if summary.status_detail else ""), _OUTCOME_CLASS.get(summary.status, "warn"))],
@@ -332,14 +484,10 @@ def section_summary(summary: RunSummary) -> str:
         duration = f"{hms(run_time)} run time (virtual clock); {hms(wall)} wall-clock"
     else:
         duration = hms(run_time if run_time is not None else wall)
-    rows.append(["duration", duration])
+    rows.append(["duration (h:mm:ss)", duration])
     size = summary.path.stat().st_size if summary.path.exists() else 0
     rows.append(["run file", f"{summary.path.resolve()} ({size / 1e6:.1f} MB)"])
-    checks = check_results(summary)
-    counts = {k: sum(1 for c in checks if c.outcome == k) for k in ("passed", "failed")}
-    other = [s for s in summary.steps if s.type != "check" and s.outcome in ("failed", "aborted", "interrupted")]
-    verdict = f"{counts['passed']} passed, {counts['failed']} failed" if checks else "no checks in this run"
-    rows.append(["checks", Cell(verdict, "fail" if counts["failed"] else ("pass" if checks else ""))])
+    other = [s for s in summary.steps if s.type not in ("check", "bit") and s.outcome in ("failed", "aborted", "interrupted")]
     if other:
         rows.append(["other steps", Cell(", ".join(f"{s.index + 1} {s.name}: {s.outcome}" for s in other), "fail")])
     planned = info.get("steps")
@@ -354,35 +502,38 @@ def section_summary(summary: RunSummary) -> str:
 
 def section_instruments(summary: RunSummary) -> str:
     """Identity of every instrument (vendor, model, serial, firmware, the rest) and recorded streams."""
-    if not summary.instruments:
-        return note("No instruments recorded in this run file.")
-    main = ("vendor", "model", "serial", "firmware")
-    rows = []
-    for name, ident in summary.instruments.items():
-        rest = ", ".join(f"{k}={v}" for k, v in ident.items() if k not in main and v != "")
-        rows.append([name, *(ident.get(k, "") for k in main), rest])
-    out = table(["instrument", *main, "other identity"], rows, left=6)
+    out = ""
+    if summary.instruments:
+        main = ("vendor", "model", "serial", "firmware")
+        rows = []
+        for name, ident in summary.instruments.items():
+            rest = ", ".join(f"{k}={v}" for k, v in ident.items() if k not in main and v != "")
+            rows.append([name, *(ident.get(k, "") for k in main), rest])
+        out += table(["instrument", *main, "other identity"], rows, left=6)
+    else:
+        out += note("No instruments recorded in this run file.")
     srows = []
     for s in summary.streams:
-        span = f"{s.t_start_s:.1f} .. {s.t_end_s:.1f}" if s.t_start_s is not None and s.t_end_s is not None else "-"
+        span = f"{hms(s.t_start_s)} – {hms(s.t_end_s)}" if s.t_start_s is not None and s.t_end_s is not None else "-"
         cols = ", ".join(f"{n}{list(s.shapes[n]) if s.shapes.get(n) else ''} ({u})" for n, u in s.columns.items())
         srows.append([s.key, cols, s.rows, span, s.rate_hz])
     if srows:
-        out += table(["stream", "columns (units)", "rows", "run time span (s)", "mean rate (Hz)"], srows,
+        out += table(["stream", "columns (units)", "rows", "run time span (h:mm:ss)", "mean rate (Hz)"], srows,
                      title="Recorded streams", left=2)
     return out
 
 
-def section_steps(summary: RunSummary) -> str:
-    """One row per executed step: number, name, type, start (run time), duration, outcome, message."""
-    if not summary.steps:
-        return note("No steps were executed.")
-    rows = [[s.index + 1, s.name, s.type, hms(s.t_start_s), hms(s.duration_s), _outcome(s.outcome), s.detail] for s in summary.steps]
-    body = table(["#", "step", "type", "start (run time)", "duration", "outcome", "message"], rows, left=7)
+def section_steps(summary: RunSummary, checks: list["CheckResult"] | None = None) -> str:
+    """One row per executed step: number, name, type, start and duration (H:MM:SS run time), outcome
+    (a check's as in the checks table: ``recorded`` when it has no limits), message."""
+    outcome = {c.step: c.outcome for c in checks or []}
+    rows = [[s.index + 1, s.name, s.type, hms(s.t_start_s), hms(s.duration_s), _outcome(outcome.get(s.index, s.outcome)), s.detail]
+            for s in summary.steps]
+    body = table(["#", "step", "type", "start (h:mm:ss)", "duration (h:mm:ss)", "outcome", "message"], rows, left=7)
     return f'<div id="steps">{body}</div>'
 
 
-# ---- 4-5: time series -----------------------------------------------------------------------------
+# ---- time series -----------------------------------------------------------------------------------
 def section_environment(data: RunData) -> str:
     """Chamber air/mount, thermocouple and board temperatures (°C) and pressure (Torr, log) vs time."""
     if not data.temperatures and data.pressure is None:
@@ -399,7 +550,7 @@ def section_rates(data: RunData) -> str:
                       "Gyro outputs and reference rate (deg/s) vs run time; long series drawn as min/max envelopes.")
 
 
-# ---- 6-8: analyses ----------------------------------------------------------------------------------
+# ---- analyses ----------------------------------------------------------------------------------------
 def _thermal_selection() -> tuple[float, float]:
     """(zero-rate tolerance in deg/s, warm-up in s) the thermal calibration uses, so the plot marks
     the same samples as fitted; defaults when the module is not available."""
@@ -499,6 +650,69 @@ def _rate_transfer_residuals(axes: dict[str, Any], common: Any) -> str:
     return out
 
 
+def why_no_sweep(ds: Any) -> str:
+    """Why the run has no temperature sweep for the thermal calibration (``""`` when it has one):
+    the sensor temperature of the samples the fit uses (zero rate, after the warm-up) must span at
+    least :data:`TEMP_SWEEP_MIN_C`."""
+    temp, _, fitted = zero_rate_samples(ds, *_thermal_selection())
+    if temp is None:
+        return "the run has no sensor temperature."
+    span = S.finite_span(temp[fitted] if fitted is not None else temp)
+    if span is None:
+        return "no zero-rate samples after the warm-up (the thermal fit's samples)."
+    if span[1] - span[0] < TEMP_SWEEP_MIN_C:
+        return (f"no temperature sweep: the sensor temperature of the zero-rate samples after the warm-up spans "
+                f"{span[1] - span[0]:.1f} °C ({span[0]:.1f} … {span[1]:.1f} °C); a sweep spans at least {TEMP_SWEEP_MIN_C:g} °C.")
+    return ""
+
+
+def why_no_rate_steps(data: RunData) -> str:
+    """Why the rate-transfer section does not apply (``""`` when it does): no recording window at a
+    commanded rate (from its name) nor with the table or bench turning (its monitor)."""
+    if any(w.rate_dps for w in data.windows):
+        return ""
+    if any(c.motion_dps is not None and c.motion_dps > S.STATIC_RATE_DPS for c in data.window_checks):
+        return ""
+    return "no rate steps were run (no recording window at a commanded rate or with the table or bench turning)."
+
+
+def static_subset(ds: Any, window: S.WindowCheck) -> Any:
+    """The rows of dataset ``ds`` inside ``window``, as a dataset whose source names the window (so
+    the noise analysis does not select a recording window of the run file again)."""
+    t = np.asarray(ds["time_s"], dtype=float)
+    sub = ds.select(S.in_window(t, window.t0, window.t1))
+    sub.source = f"{ds.source}, window '{window.name}'"
+    return sub
+
+
+def section_noise(checks: list[S.WindowCheck], ds: Any,
+                  analysis: Callable[[str, Any, Callable[[CalibrationResult], str]], str]) -> str:
+    """Noise from the longest static recording window only (:mod:`bench.report.static`): the Allan
+    deviation section of that window, or why there is none; then every window with its motion,
+    temperature drift and verdict. ``analysis(key, dataset, render)`` runs the noise calibration."""
+    chosen = S.longest_static(checks)
+    if chosen is None:
+        out = note(f"No noise analysis: {S.no_static_reason(checks)}. Noise over a moving table or a drifting "
+                   "temperature would measure the motion or the drift, not the sensor.")
+    else:
+        others = sum(1 for c in checks if c.static) - 1
+        out = note(f"Noise of the static window '{chosen.name}' ({hms(chosen.t0)} – {hms(chosen.t1)}, {chosen.samples} samples)"
+                   + (f"; {others} other static window(s), none longer" if others else "")
+                   + f"; static: table and bench at rest (≤ {S.STATIC_RATE_DPS:g} deg/s), temperature drift ≤ {S.TEMP_DRIFT_MAX_C:g} °C.")
+        out += analysis("noise", static_subset(ds, chosen), lambda r: section_allan(r.json))
+    rows = []
+    for c in checks[:MAX_WINDOW_ROWS]:
+        verdict_cell = Cell("used", "pass") if c is chosen else (Cell("static", "") if c.static else Cell("; ".join(c.reasons), "l"))
+        rows.append([c.name, hms(c.t0), hms(c.duration_s), c.samples, c.motion_dps, c.temp_drift_c, verdict_cell])
+    if rows:
+        out += table(["window", "start (h:mm:ss)", "duration (h:mm:ss)", "samples", "table/bench rate (deg/s)",
+                      "temperature drift (°C)", "static?"], rows, title="Recording windows judged for noise")
+    if len(checks) > MAX_WINDOW_ROWS:
+        rest = checks[MAX_WINDOW_ROWS:]
+        out += note(f"{len(rest)} more windows not listed ({sum(1 for c in rest if c.static)} of them static).")
+    return out
+
+
 def section_allan(cal_json: dict[str, Any]) -> str:
     """Allan deviation per axis, log-log, with ARW (−½), bias-instability (0) and RRW (+½) lines."""
     axes = {a: v for a, v in (cal_json.get("axes") or {}).items() if isinstance(v, dict)}
@@ -513,80 +727,7 @@ def section_allan(cal_json: dict[str, Any]) -> str:
     return out
 
 
-# ---- 9: pre/post comparison -------------------------------------------------------------------------
-@dataclass
-class CheckResult:
-    """One check of the run: from its ``check`` event (name, signal, statistic, window pattern,
-    value, limits, reference check) and its step's outcome and message."""
-
-    name: str
-    step: int
-    outcome: str
-    signal: str = ""
-    statistic: str = ""
-    window: str = ""
-    value: float | None = None
-    minimum: float | None = None
-    maximum: float | None = None
-    reference: str | None = None
-    basis: str = ""
-    message: str = ""
-
-
-def check_results(summary: RunSummary) -> list[CheckResult]:
-    """Every check step (and built-in test) in step order, with what its event recorded."""
-    data: dict[int, dict[str, Any]] = {}
-    for e in summary.events:
-        if e.kind == "check" and e.data:
-            try:
-                d = json.loads(e.data.decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError):
-                continue
-            if isinstance(d, dict):
-                data[e.step] = d
-    out = []
-    for s in summary.steps:
-        if s.type not in ("check", "bit"):
-            continue
-        d = data.get(s.index, {})
-        out.append(CheckResult(
-            name=s.name, step=s.index, outcome=s.outcome, signal=str(d.get("signal", "")), statistic=str(d.get("statistic", s.type)),
-            window=str(d.get("window", "")), value=_float(d.get("value")), minimum=_float(d.get("min")),
-            maximum=_float(d.get("max")), reference=d.get("reference") or None, basis=str(d.get("basis", "")), message=s.detail,
-        ))
-    return out
-
-
-def _float(v: Any) -> float | None:
-    try:
-        return None if v is None else float(v)
-    except (TypeError, ValueError):
-        return None
-
-
-def signal_units(summary: RunSummary, signal: str) -> str:
-    """Units of ``INSTRUMENT.COLUMN[.AXIS]`` from the run's stream columns, ``""`` if unknown."""
-    parts = signal.split(".")
-    if len(parts) < 2:
-        return ""
-    inst, col = parts[0], parts[1]
-    for s in summary.streams:
-        if (s.key == inst or s.key.startswith(inst + "/")) and col in s.columns:
-            return s.columns[col]
-    return ""
-
-
-def display_value(statistic: str, value: float | None, units: str) -> tuple[float | None, str]:
-    """A check value in display units: scale-factor errors in %, slopes per s, counts bare."""
-    if statistic == "scale_factor_error":
-        return (None if value is None else 100.0 * value), "%"
-    if statistic == "slope":
-        return value, f"{units}/s" if units else "1/s"
-    if statistic in ("count", "bit"):
-        return value, ""
-    return value, units
-
-
+# ---- checks and the pre/post comparison ----------------------------------------------------------------
 def _stage(check: CheckResult) -> str:
     """Stage label of a check from its window pattern: ``post_z_x_*`` of signal ``...gyro.x`` →
     ``post_z``; ``pre_z_*`` → ``pre``; the check name when the pattern says nothing."""
@@ -666,7 +807,7 @@ def _stage_errors(comps: list[CheckResult], by_name: dict[str, CheckResult], dat
     return out
 
 
-# ---- 10-11: tables and checks -------------------------------------------------------------------------
+# ---- calibration tables ------------------------------------------------------------------------------
 def section_tables(results: dict[str, CalibrationResult | str]) -> str:
     """Every :class:`~bench.analysis.result.ResultTable` (and note) of the analyses that ran."""
     out = ""
@@ -678,25 +819,4 @@ def section_tables(results: dict[str, CalibrationResult | str]) -> str:
             out += table(list(t.headers), t.rows, title=f"{what}: {t.title}")
         if res.notes:
             out += "<ul>" + "".join(f'<li class="note">{esc(what)}: {esc(n)}</li>' for n in res.notes) + "</ul>"
-    return out or note("No calibration ran on this run (see sections 6-8 for why).")
-
-
-def section_checks(summary: RunSummary) -> str:
-    """Every check (and built-in test) with its value, limits, reference and outcome."""
-    checks = check_results(summary)
-    if not checks:
-        return note("This run has no checks.")
-    rows = []
-    for c in checks:
-        units = signal_units(summary, c.signal)
-        val, u = display_value(c.statistic, c.value, units)
-        lo = display_value(c.statistic, c.minimum, units)[0]
-        hi = display_value(c.statistic, c.maximum, units)[0]
-        rows.append([c.step + 1, c.name, _outcome(c.outcome), c.signal, c.statistic, c.window, c.reference or "",
-                     val, lo, hi, u, Cell(c.message, "l")])
-    n_fail = sum(1 for c in checks if c.outcome != "passed")
-    head = Cell(f"{len(checks) - n_fail} of {len(checks)} checks passed", "fail" if n_fail else "pass")
-    verdict = f'<p class="{head.cls}">{esc(head.value)}</p>'
-    body = table(["#", "check", "outcome", "signal", "statistic", "window", "reference", "value", "min", "max", "units", "message"],
-                 rows, left=7)
-    return verdict + body
+    return out or note("No calibration ran on this run (see the analysis sections for why).")

@@ -1,7 +1,8 @@
 """Step interpreter with safe state on abort.
 
 Outcomes: every step ends ``passed`` (a check held), ``failed`` (a check did not hold; the run
-goes on and ends with exit code 1), ``done`` (an action), or ``aborted``. An instrument fault, a
+goes on and ends with exit code 1), ``recorded`` (a check without limits: value stored, no
+verdict), ``done`` (an action), or ``aborted``. An instrument fault, a
 recorder failure, an interlock trip, a step that cannot go on or an abort request (SIGINT/SIGTERM)
 stops the run: every instrument is brought to its safe state, the run file is closed with status
 ``aborted`` and the reason.
@@ -22,6 +23,8 @@ from bench.errors import BenchError, DeviceFault, InstrumentError, RecorderError
 from bench.lab import Lab
 from bench.procedure import Procedure, Step
 from bench.record import RunRecorder
+from bench.record.checks import check_counts, check_from_result, check_json, checks_verdict
+from bench.record.summary_json import json_ready
 from bench.runner import steps as step_handlers
 from bench.runner.ingest import StreamIngest
 from bench.runner.instruments import Polled, Streaming, link_baudrate
@@ -78,14 +81,42 @@ class RunResult:
 
     @property
     def ok(self) -> bool:
+        """Completed with no failed step (checks without limits, ``recorded``, do not fail a run)."""
         return self.status == "completed" and not self.failed_steps
+
+    @property
+    def check_counts(self) -> dict[str, int]:
+        """Checks by outcome: ``passed``, ``failed``, ``recorded`` (no limits, no verdict)."""
+        return check_counts(c["outcome"] for c in self.checks)
+
+    @property
+    def verdict(self) -> str:
+        """What the checks say, e.g. ``all 3 checks passed`` or ``3 checks recorded without limits; no verdict``."""
+        return checks_verdict(self.check_counts)
+
+    def as_json(self) -> dict:
+        """The result as a JSON-ready mapping (``bench run --json``; fields in ``docs/run-file.md``):
+        run and wall times in s, steps with 1-based ``step``, checks as ``bench inspect --json`` gives
+        them, rows and link statistics per stream."""
+        return json_ready({
+            "status": self.status, "abort_reason": self.abort_reason, "ok": self.ok,
+            "run_time_s": self.run_time_s, "wall_time_s": self.wall_time_s,
+            "steps": [{"step": o.index + 1, "name": o.name, "type": o.type, "outcome": o.outcome, "detail": o.message,
+                       "t_start_s": o.t_start_s, "t_end_s": o.t_end_s} for o in self.outcomes],
+            "checks": [check_json(check_from_result(c, int(c.get("step", -1)), str(c["outcome"]))) for c in self.checks],
+            "checks_summary": {**self.check_counts, "verdict": self.verdict},
+            "streams": {name: {"rows": rows, **self.stream_stats.get(name, {})} for name, rows in self.rows.items()},
+        })
 
 
 class Runner:
     """Runs one procedure on one lab into one recorder."""
 
-    def __init__(self, procedure: Procedure, lab: Lab, recorder: RunRecorder, progress: Progress, operator: Operator | None = None):
+    def __init__(self, procedure: Procedure, lab: Lab, recorder: RunRecorder, progress: Progress, operator: Operator | None = None,
+                 declared: dict[str, dict[str, str]] | None = None):
         self.procedure = procedure
+        self.declared = declared or {}
+        """Instrument name -> the identity its lab config declares, recorded next to what it reports."""
         self.lab = lab
         self.clock = lab.clock
         self.rec = recorder
@@ -135,6 +166,7 @@ class Runner:
         for name, drv in self.lab.instruments.items():
             info = drv.identify()
             info.update(driver=drv.kind, port=self.lab.ports[name], mode=self.lab.mode, baudrate=link_baudrate(drv))
+            info.update(self.declared.get(name, {}))
             if drv.streams and isinstance(drv, Streaming):
                 if drv.compensation is not None:
                     info["compensation"] = drv.compensation.describe()
@@ -279,13 +311,31 @@ class Runner:
             self.monitor.poll(t)
             if t + 1e-9 >= next_drain:
                 next_drain = min(t + period, t_end)
-                for name in list(self.ingest.streaming):
-                    self.monitor.guarded(name, lambda n=name: self._drain(n))
-                self.monitor.check_stalls(self.clock.now())
-                self.rec.tick(self.clock.now())
-                self.progress.advance(self.clock.now(), self._readings())
+                self._service_streams()
             if condition is not None and condition():
                 return True
+
+    def _service_streams(self) -> None:
+        """Drain the streaming instruments, check them for stalls, flush the run file when due
+        (heartbeat) and show progress."""
+        for name in list(self.ingest.streaming):
+            self.monitor.guarded(name, lambda n=name: self._drain(n))
+        self.monitor.check_stalls(self.clock.now())
+        self.rec.tick(self.clock.now())
+        self.progress.advance(self.clock.now(), self._readings())
+
+    def keep_watch(self) -> None:
+        """Called while the operator is asked (every :data:`~bench.runner.operator.ANSWER_TICK_S` of
+        wall time, on this thread): honour abort requests and keep the run file's heartbeat. On the
+        wall clock the lab goes on meanwhile, so it stays under watch as in :meth:`wait_until`
+        (polled readings, interlocks, streams); on a virtual clock run time stands still while a
+        person answers."""
+        self.check_abort()
+        if self.clock.virtual:
+            self.rec.tick(self.clock.now())
+            return
+        self.monitor.poll(self.clock.now())
+        self._service_streams()
 
     def _hold_while_paused(self, period: float) -> None:
         self.progress.message("paused: timed steps are on hold, instruments stay under watch (pause again to resume)")

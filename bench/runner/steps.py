@@ -1,6 +1,7 @@
 """What each action step does to the instruments: one handler per step type.
 
-Handlers return ``(outcome, message)``: ``done`` (an action), ``passed`` / ``failed`` (a check);
+Handlers return ``(outcome, message)``: ``done`` (an action), ``passed`` / ``failed`` (a check
+with limits), ``recorded`` (a check without limits: its value is stored, no verdict);
 a condition that makes going on pointless or unsafe (a chamber that never reaches its set point,
 an operator who says no) raises :class:`StepAbort`, which sends the run to the safe state.
 Every wait goes through the runner's :meth:`~bench.runner.engine.Runner.wait_until`, so aborts,
@@ -12,11 +13,27 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from rich.markup import escape
+
 from bench.errors import BenchError
 from bench.procedure import Step
+from bench.procedure.schema import PROMPT_TIMEOUT_S
+from bench.procedure.signals import signal_units
+from bench.record import layout
+from bench.record.checks import has_limits
+from bench.runner.operator import (
+    CHOICES,
+    MAX_INVALID_ANSWERS,
+    NON_INTERACTIVE_SOURCES,
+    NoAnswer,
+    accepted_answers,
+    answer_verdict,
+    question,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from bench.runner.engine import Runner
@@ -39,13 +56,42 @@ def comment(r: "Runner", step: Step) -> tuple[str, str]:
 
 
 def prompt(r: "Runner", step: Step) -> tuple[str, str]:
+    """Ask the operator to act and confirm: the question shows the accepted answers, anything else
+    is asked again (at most :data:`MAX_INVALID_ANSWERS` answers, within the step's ``timeout`` of wall
+    time). Each question is an event ``prompt`` (the run reads ``waiting`` until it is answered),
+    each answer an event ``operator``; the run keeps its heartbeat meanwhile (:meth:`Runner.keep_watch`)."""
     key = step.params.get("id") or step.name
-    answer, source = r.operator.ask(key, step.params["text"], simulated=r.lab.mode == "sim")
-    r.rec.event("operator", "prompt", json.dumps({"id": key, "text": step.params["text"], "answer": answer, "source": source}),
-                t_s=r.clock.now(), step=step.index)
-    if answer.strip().lower() not in ("y", "yes", "ok", "done", "confirmed", "true"):
-        raise StepAbort(f"operator answered {answer!r} at prompt {key!r}: {step.params['text']}")
-    return "done", f"confirmed ({source})"
+    text = step.params["text"]
+    timeout_s = float(step.params.get("timeout") or PROMPT_TIMEOUT_S)
+    deadline = time.monotonic() + timeout_s
+    answer = ""
+    attempt = 0
+    for attempt in range(1, MAX_INVALID_ANSWERS + 1):
+        r.rec.event(layout.EVENT_PROMPT, "operator", question(text), t_s=r.clock.now(), step=step.index,
+                    data=json.dumps({"id": key, "text": text, "choices": list(CHOICES), "attempt": attempt,
+                                     "timeout_s": timeout_s}).encode())
+        r.rec.flush()  # readers see the question (and the waiting run) at once
+        try:
+            answer, source = r.operator.ask(key, text, simulated=r.lab.mode == "sim", keepalive=r.keep_watch, deadline=deadline,
+                                            show=lambda q: r.progress.message(escape(q)))
+        except NoAnswer as exc:
+            why = f"within {timeout_s:g} s" if exc.timed_out else f"({exc})"
+            raise StepAbort(f"no answer at prompt {key!r} {why}: {text}") from None
+        verdict = answer_verdict(answer)
+        r.rec.event(layout.EVENT_OPERATOR, "prompt", json.dumps({"id": key, "text": text, "answer": answer, "source": source,
+                                                                  "attempt": attempt, "valid": verdict is not None}),
+                    t_s=r.clock.now(), step=step.index)
+        if verdict == "yes":
+            return "done", f"confirmed ({source})"
+        if verdict == "no":
+            raise StepAbort(f"operator answered {answer!r} at prompt {key!r}: {text}")
+        if source in NON_INTERACTIVE_SOURCES:
+            break  # the same answer would come again
+        if attempt < MAX_INVALID_ANSWERS:
+            r.progress.message(escape(f"{answer!r} is not an accepted answer; accepted: {accepted_answers()} "
+                                      f"(asking again, {attempt + 1} of {MAX_INVALID_ANSWERS})"))
+    raise StepAbort(f"no valid answer at prompt {key!r} after {attempt} attempt{'s' if attempt != 1 else ''} "
+                    f"(last {answer!r}; accepted: {accepted_answers()}): {text}")
 
 
 def power(r: "Runner", step: Step) -> tuple[str, str]:
@@ -278,14 +324,26 @@ def check(r: "Runner", step: Step) -> tuple[str, str]:
         ref_text = f", {diff:+.6g} from {p['reference']} ({ref['value']:.6g})"
         if p.get("max_difference") is not None and abs(diff) > p["max_difference"]:
             problems.append(f"differs from {p['reference']} by more than {p['max_difference']:g}")
-    outcome = "failed" if problems else "passed"
+    limited = has_limits(lo, hi, p.get("max_difference"), p.get("reference"))
+    outcome = layout.OUTCOME_FAILED if problems else (layout.OUTCOME_PASSED if limited else layout.OUTCOME_RECORDED)
     result = {"name": step.name, "signal": p["signal"], "statistic": p["statistic"], "window": p["window"], "value": value,
-              "min": lo, "max": hi, "reference": p.get("reference") or None, "outcome": outcome, "basis": basis}
+              "min": lo, "max": hi, "reference": p.get("reference") or None, "outcome": outcome, "basis": basis,
+              "max_difference": p.get("max_difference"), "units": _signal_units(r, p["signal"]), "step": step.index}
     r.results[step.name] = result
-    r.rec.event("check", step.name, f"{outcome}: {p['statistic']} of {p['signal']} = {value:.6g}", t_s=r.clock.now(),
+    r.rec.event(layout.EVENT_CHECK, step.name, f"{outcome}: {p['statistic']} of {p['signal']} = {value:.6g}", t_s=r.clock.now(),
                 step=step.index, data=json.dumps(result).encode())
+    if not limited:
+        return outcome, f"{p['statistic']} {p['signal']} = {value:.6g}{ref_text}, no limits: no verdict ({basis})"
     limits = f"[{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}]"
     return outcome, f"{p['statistic']} {p['signal']} = {value:.6g} {limits}{ref_text} ({basis})" + (f": {'; '.join(problems)}" if problems else "")
+
+
+def _signal_units(r: "Runner", signal: str) -> str:
+    """Units of ``signal`` on this lab (``""`` if its instrument or column is unknown)."""
+    try:
+        return signal_units(signal, r.lab.kinds.get(signal.split(".", 1)[0]))
+    except KeyError:
+        return ""
 
 
 HANDLERS = {

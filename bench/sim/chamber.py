@@ -34,51 +34,15 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from bench.params import dataclass_from_dict
+from bench.model.chamber import ATMOSPHERE_TORR, ChamberParams
 
-ATMOSPHERE_TORR = 760.0
+__all__ = ["ATMOSPHERE_TORR", "STEP_S", "Chamber", "ChamberParams"]
+
 STEP_S = 1.0
 """Largest integration step (s): well below the smallest time constant (100 s)."""
-
-
-@dataclass
-class ChamberParams:
-    """Parameters of :class:`Chamber`; units in the names (sources in the module docstring)."""
-
-    initial_temp_c: float = 20.0
-    set_point_low_c: float = -40.0
-    set_point_high_c: float = 100.0
-    heat_rate_ambient_c_per_min: float = 0.62
-    cool_rate_ambient_c_per_min: float = 0.47
-    rate_vacuum_c_per_min: float = 0.20
-    control_band_c: float = 2.0
-    tau_ambient_s: float = 100.0
-    tau_vacuum_s: float = 1800.0
-    conduction_transition_torr: float = 1.0
-    self_heating_c: float = 4.0
-    tau_rough_s: float = 25.0
-    crossover_torr: float = 0.1
-    turbo_k_torr_s: float = 0.29
-    ultimate_torr: float = 1e-7
-    leak_per_s: float = 6.3e-5
-    vent_equilibrium_torr: float = 190.0
-    history_s: float = 7200.0
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "ChamberParams":
-        """Build from a mapping; unknown keys raise ``KeyError`` naming them."""
-        return dataclass_from_dict(cls, data)
-
-    @property
-    def tau_vent_s(self) -> float:
-        """Vent time constant (s) that makes pump-on-with-vent-open settle at the equilibrium."""
-        p = self.vent_equilibrium_torr
-        return self.tau_rough_s * (ATMOSPHERE_TORR - p) / p
 
 
 class Chamber:
@@ -191,7 +155,7 @@ class Chamber:
 
     def _fraction_ambient(self) -> float:
         """Share of the ambient-pressure gas coupling left at the current pressure (0..1)."""
-        return self.pressure / (self.pressure + self.p.conduction_transition_torr)
+        return self.p.fraction_ambient(self.pressure)
 
     def _step(self, dt: float) -> None:
         p = self.p
@@ -203,9 +167,7 @@ class Chamber:
             self.working_set_point_c = self.set_point_c if abs(diff) <= step else self.working_set_point_c + math.copysign(step, diff)
         # air under proportional control, rate-limited by heater/cooler
         self._u = max(-1.0, min(1.0, (self.working_set_point_c - self.air_c) / p.control_band_c))
-        heat = f * p.heat_rate_ambient_c_per_min + (1 - f) * p.rate_vacuum_c_per_min
-        cool = f * p.cool_rate_ambient_c_per_min + (1 - f) * p.rate_vacuum_c_per_min
-        rate_max = (heat if self._u > 0 else cool) / 60.0
+        rate_max = p.slew_rate_c_per_s(self._u > 0, f)
         # exact solution of dT/dt = rate_max·(SP − T)/band inside the band, linear slew outside
         target = self.working_set_point_c
         if abs(target - self.air_c) > p.control_band_c:
@@ -213,7 +175,7 @@ class Chamber:
         else:
             self.air_c = target + (self.air_c - target) * math.exp(-rate_max / p.control_band_c * dt)
         # unit: air -> mount -> die, conductance interpolated between vacuum and ambient
-        g = f / p.tau_ambient_s + (1 - f) / p.tau_vacuum_s
+        g = p.unit_conductance_per_s(f)
         a = math.exp(-g * dt)
         self.mount_c = self.air_c + (self.mount_c - self.air_c) * a
         die_target = self.mount_c + (p.self_heating_c if self.unit_powered else 0.0)

@@ -1,0 +1,162 @@
+"""What every ``bench`` command shares on the command line.
+
+* :class:`Parser`: usage errors as one line and exit code 2; ``--debug`` accepted after any
+  subcommand as well as before it; help texts keep their line breaks (examples, exit codes).
+* :func:`epilog`: the "exit codes" and "examples" block at the end of each command's ``--help``.
+* :func:`add_force`, :func:`check_output`, :func:`output_file`: output files are never
+  overwritten unless ``--force`` is given, and never replaced by a half-written file.
+
+Light on purpose (argparse and :mod:`bench.errors` only): ``bench --help`` and ``bench --version``
+import nothing else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import textwrap
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterable, Iterator
+
+from bench.errors import EXIT_BAD_INPUT, InputError
+
+DEBUG_HELP = "show the traceback of an error instead of one line (accepted before or after the command)"
+
+BAD_INPUT = "bad input: one located line per problem (file:line:column: field: message), nothing run or written"
+"""Exit code 2 as every command means it (``bench.errors.EXIT_BAD_INPUT``)."""
+
+INTERNAL = "an unexpected error (one line; --debug shows the traceback)"
+"""Exit code 1 of commands that have no failure of their own."""
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Descriptions are filled to the terminal width; text with line breaks (the epilog of
+    :func:`epilog`: exit codes, examples) is kept as written, so examples stay copyable."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse that reports usage errors as one line and exit code 2.
+
+    Every subparser (``top_level=False``, what ``add_subparsers(parser_class=Parser)`` creates)
+    also takes ``--debug``; its default is ``SUPPRESS`` so that a subcommand without it leaves the
+    top-level value alone (``bench --debug run ...`` and ``bench run ... --debug`` are the same).
+    """
+
+    def __init__(self, *args, top_level: bool = False, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+        if top_level:
+            self.add_argument("--debug", action="store_true", help=DEBUG_HELP)
+        else:
+            self.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=DEBUG_HELP)
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def epilog(*examples: str, ok: str, failed: str = INTERNAL, bad: str = BAD_INPUT, notes: str = "") -> str:
+    """The end of a command's ``--help``: optional notes, its exit codes, one example per line.
+
+    ``ok``, ``failed`` and ``bad`` say what exit codes 0, 1 and 2 mean for this command. Notes and
+    exit codes are wrapped to the terminal; examples never are.
+    """
+    width = max(60, min(shutil.get_terminal_size().columns, 120) - 2)
+    lines = textwrap.wrap(notes, width) + [""] if notes else []
+    lines.append("exit codes:")
+    for code, text in (("0", ok), ("1", failed), ("2", bad)):
+        lines += textwrap.wrap(text, width, initial_indent=f"  {code}  ", subsequent_indent="     ")
+    lines += ["", "examples:", *(f"  {e}" for e in examples)]
+    return "\n".join(lines)
+
+
+def quantity(value: str, units: str, option: str) -> float:
+    """A command-line quantity ("2h", "90 min", "0.1/min") as a float in ``units``; a bare number
+    ("2") is already in ``units``. :class:`InputError` naming ``option`` (exit 2) for anything
+    else: not a quantity, wrong dimension, not finite."""
+    try:
+        number = float(value)
+    except ValueError:
+        from bench.units import to_units  # pint: only when a unit is written
+
+        return to_units(value, units, None, option)
+    if not math.isfinite(number):
+        raise InputError(f"{value!r} is not a finite quantity", None, option)
+    return number
+
+
+def add_force(p: argparse.ArgumentParser) -> None:
+    """``--force``: overwrite existing output files (default: refuse them with exit code 2)."""
+    p.add_argument("--force", action="store_true",
+                   help="overwrite output files that exist (default: refuse them, exit 2, nothing written)")
+
+
+def check_output(path: Path | None, option: str, *, force: bool = False, inputs: Iterable[Path | None] = ()) -> None:
+    """Refuse an output ``path`` (given by ``option``, e.g. ``-o``) that exists unless ``force``,
+    and always one that is also an input of the command: :class:`InputError` (exit 2), before any
+    work is done. ``None`` (option not given) passes."""
+    if path is None:
+        return
+    for src in inputs:
+        if src is not None and _same_file(path, src):
+            raise InputError(f"{path} is also the input; write the output to another file", None, option)
+    if os.path.lexists(path) and not force:
+        raise _exists(path, option)
+    if os.path.isdir(path):
+        raise InputError(f"{path} is a directory; give a file name", None, option)
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise InputError(f"directory {parent} does not exist; create it or write elsewhere", None, option)
+
+
+@contextmanager
+def output_file(path: Path, option: str, *, force: bool = False) -> Iterator[Path]:
+    """Where to write the output ``path``: a hidden sibling, moved to ``path`` when the block ends
+    without an exception (removed otherwise). An existing ``path`` is replaced only with ``force``
+    and only once the new file is complete; without ``force`` a file that appeared meanwhile is not
+    overwritten (:class:`InputError`, ``option`` names the option). The writer may refuse an
+    existing file: the sibling never exists beforehand."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        yield tmp
+        if os.path.exists(tmp):  # else the writer wrote nothing (e.g. refused)
+            _move_into_place(tmp, path, option, force)
+    finally:
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
+
+
+def _move_into_place(tmp: Path, path: Path, option: str, force: bool) -> None:
+    try:
+        if force:
+            os.replace(tmp, path)
+            return
+        try:
+            os.link(tmp, path)  # fails if path exists: never overwrites
+        except FileExistsError:
+            raise _exists(path, option) from None
+        except OSError:  # a filesystem without hard links
+            if os.path.lexists(path):
+                raise _exists(path, option) from None
+            os.rename(tmp, path)
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc.strerror or exc}", None, option) from None
+
+
+def _exists(path: Path, option: str) -> InputError:
+    return InputError(f"{path} exists; choose another name or delete it (--force overwrites it)", None, option)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False

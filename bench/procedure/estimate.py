@@ -1,0 +1,288 @@
+"""How long a procedure takes: an estimate per step from the lab model (``bench plan``, ``bench
+validate``, the progress ETA of ``bench run``).
+
+Timed steps count their durations (``record``, ``wait``, settle times, vibration profiles). Waits
+for the lab are estimated from the lab model of :mod:`bench.model` (the numbers the simulator runs
+on; a lab config's ambient temperature and instrument drivers when one is given), following the
+procedure's steps in order so that each wait starts from where the previous steps left the lab:
+
+* ``set_temperature`` with ``wait``: the air slews at the heater's or cooler's rate (or the
+  ``ramp``, if slower) and approaches the set point exponentially inside the control band
+  (:mod:`bench.model.chamber`), at the rates of the pressure the chamber is at;
+* ``wait_until_stable`` on a temperature of the chamber or the unit (``tvac.air_temp``,
+  ``tvac.mount_temp``, thermocouples, the board's die ``temp``): until the chamber has finished
+  its slew or ramp, then until the remaining drift over the ``hold`` fits in the ``band`` (the
+  slowest of the air's approach and the unit's time constant, the die's self-heating after
+  power-on), then the ``hold``;
+* ``pump_down`` and ``vent``: the pump-down law (roughing, then the turbo's 1/t) and the vent law;
+* rate table motions: acceleration-limited trapezoids at the step's or the drive's profile rate
+  and acceleration (:mod:`bench.model.rate_table`).
+
+A wait without a model (``wait_until_stable`` on another signal, a table move from an unknown
+angle) counts what it takes at least (its hold, the braking) and marks the estimate a **lower
+bound**. A wait the model says never ends counts its ``timeout`` (the run would abort there).
+Operator prompts count 0 s: how long a person takes is not known (a dry-run's clock stands still).
+
+Units: s of run time, °C, Torr, deg, deg/s, deg/s².
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterable
+
+from bench.model.chamber import ATMOSPHERE_TORR, ChamberParams, pump_down_time_s, vent_time_s
+from bench.model.rate_table import TableParams, move_time_s
+from bench.procedure.signals import DEFAULT_KINDS, parse_signal
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.procedure.loader import Step
+
+PROMPT_TYPES = ("prompt", "mount")
+"""Steps that wait for the operator (counted 0 s)."""
+
+
+@dataclass
+class LabModel:
+    """What the estimate knows of the lab: ``ambient_c`` (°C, the chamber's air at the start), the
+    chamber and rate-table models, and ``kinds`` (instrument -> driver; None: the standard names)."""
+
+    ambient_c: float = 20.0
+    chamber: ChamberParams = field(default_factory=ChamberParams)
+    table: TableParams = field(default_factory=TableParams)
+    kinds: dict[str, str] | None = None
+
+
+@dataclass
+class StepEstimate:
+    """One step: ``duration_s`` (s of run time), whether it is only a ``lower_bound``, and ``basis``
+    (how it was estimated, for people)."""
+
+    duration_s: float
+    lower_bound: bool = False
+    basis: str = ""
+
+
+@dataclass
+class Estimate:
+    """The estimate of every step of a procedure, in order."""
+
+    steps: list[StepEstimate]
+    prompts: int = 0
+    """Operator prompts (counted 0 s)."""
+
+    @property
+    def total_s(self) -> float:
+        """Sum of the steps (s)."""
+        return sum(s.duration_s for s in self.steps)
+
+    @property
+    def lower_bound(self) -> bool:
+        """True if any step is only a lower bound: the procedure takes at least :attr:`total_s`."""
+        return any(s.lower_bound for s in self.steps)
+
+    def starts_s(self) -> list[float]:
+        """Estimated run time (s) at which each step starts."""
+        out, t = [], 0.0
+        for s in self.steps:
+            out.append(t)
+            t += s.duration_s
+        return out
+
+
+class _Chamber:
+    """The chamber's air as the estimate follows it: approaching ``target_c`` from side ``sign``
+    at ``speed`` (°C/s) until ``t_tail`` (s), where it is ``tail_c`` away, then exponentially with
+    ``tau_air_s``; the unit follows the air with the time constant of the current pressure."""
+
+    def __init__(self, p: ChamberParams, ambient_c: float):
+        self.p = p
+        self.target_c = ambient_c
+        self.sign = 1.0
+        self.speed = 0.0
+        self.t_tail = 0.0
+        self.tail_c = 0.0
+        self.tau_air_s = 1.0
+        self.pressure_torr = ATMOSPHERE_TORR
+        self.power_changed_at: float | None = None  # run time (s) the board's power last changed
+
+    def distance(self, t: float) -> float:
+        """How far (°C) the air is from the set point at run time ``t``."""
+        if t < self.t_tail:
+            return self.tail_c + self.speed * (self.t_tail - t)
+        return self.tail_c * math.exp(-(t - self.t_tail) / self.tau_air_s)
+
+    def set_point(self, t: float, sp_c: float, ramp_c_per_min: float) -> None:
+        air = self.target_c - self.sign * self.distance(t)
+        d = abs(sp_c - air)
+        heating = sp_c > air
+        slew = self.p.slew_rate_c_per_s(heating, self.p.fraction_ambient(self.pressure_torr))
+        band = self.p.control_band_c
+        ramp = ramp_c_per_min / 60.0
+        speed, tail = (ramp, band * ramp / slew) if 0 < ramp < slew else (slew, band)
+        self.target_c, self.sign, self.speed, self.tau_air_s = sp_c, 1.0 if heating else -1.0, speed, band / slew
+        self.tail_c = min(d, tail)
+        self.t_tail = t + (d - self.tail_c) / speed
+
+    def reach_s(self, t: float, band_c: float) -> float:
+        """Run time (s) from ``t`` until the air is within ``band_c`` of the set point."""
+        if self.tail_c <= band_c:
+            return max(0.0, self.t_tail - (band_c - self.tail_c) / max(self.speed, 1e-12) - t)
+        if band_c <= 0:
+            return math.inf
+        return max(0.0, self.t_tail + self.tau_air_s * math.log(self.tail_c / band_c) - t)
+
+    def unit_tau_s(self) -> float:
+        return 1.0 / self.p.unit_conductance_per_s(self.p.fraction_ambient(self.pressure_torr))
+
+    def stable_s(self, t: float, where: str, band_c: float, hold_s: float) -> float:
+        """Run time (s) from ``t`` until a temperature of the ``air``, the ``unit`` (mount,
+        thermocouples) or the ``die`` has drifted less than ``band_c`` over ``hold_s``."""
+        t0 = max(t, self.t_tail)
+        tau_u = self.unit_tau_s()
+        drift = self.distance(t0)
+        tau = self.tau_air_s
+        if where != "air":
+            drift += self.speed * tau_u * math.exp(-(t0 - self.t_tail) / tau_u)
+            tau = max(tau, tau_u)
+        if where == "die" and self.power_changed_at is not None:
+            drift += self.p.self_heating_c * math.exp(-(t0 - self.power_changed_at) / tau_u)
+        drift *= 1.0 - math.exp(-hold_s / tau) if hold_s > 0 else 0.0
+        settle = tau * math.log(drift / band_c) if band_c > 0 and drift > band_c else (0.0 if drift <= band_c else math.inf)
+        return (t0 - t) + settle + hold_s
+
+
+class _Table:
+    """One rate table as the estimate follows it: rate (deg/s), angle (deg, None once turned at a
+    rate), tilt (deg), and the profile velocity and acceleration in force on each axis."""
+
+    def __init__(self, p: TableParams):
+        self.rate = 0.0
+        self.angle: float | None = 0.0
+        self.tilt = 0.0
+        self.velocity = {"rotation": p.profile_velocity_dps, "tilt": p.profile_velocity_dps}
+        self.accel = {"rotation": p.profile_accel_dps2, "tilt": p.profile_accel_dps2}
+
+
+def estimate_procedure(steps: Iterable["Step"], lab: LabModel | None = None) -> Estimate:
+    """The :class:`Estimate` of ``steps`` (a procedure's expanded steps) on the lab ``lab``
+    (default: the model's own defaults and the standard instrument names)."""
+    lab = lab or LabModel()
+    kinds = lab.kinds if lab.kinds is not None else DEFAULT_KINDS
+    chambers: dict[str, _Chamber] = {}
+    tables: dict[str, _Table] = {}
+
+    def chamber(name: str | None = None) -> _Chamber:
+        name = name or next((n for n, k in kinds.items() if k == "tvac"), "tvac")
+        return chambers.setdefault(name, _Chamber(lab.chamber, lab.ambient_c))
+
+    def table(name: str) -> _Table:
+        return tables.setdefault(name, _Table(lab.table))
+
+    out: list[StepEstimate] = []
+    prompts = 0
+    t = 0.0
+    for s in steps:
+        p = s.params
+        e = StepEstimate(0.0)
+        if s.type in ("record", "wait"):
+            e = StepEstimate(float(p.get("duration", 0.0)), basis="duration")
+        elif s.type in PROMPT_TYPES:
+            prompts += 1
+            e = StepEstimate(0.0, basis="operator prompt, not counted")
+        elif s.type == "power":
+            chamber().power_changed_at = t
+        elif s.type == "set_temperature":
+            c = chamber(p["instrument"])
+            c.set_point(t, float(p["set_point"]), float(p.get("ramp") or 0.0))
+            if p.get("wait"):
+                e = _capped(c.reach_s(t, float(p.get("band", 1.0))), p, "chamber ramp and approach (chamber model)")
+        elif s.type == "wait_until_stable":
+            e = _stable(s, t, kinds, chamber)
+        elif s.type == "pump_down":
+            c = chamber(p["instrument"])
+            e = _capped(pump_down_time_s(c.p, float(p["pressure"]), c.pressure_torr), p, "pump-down law (chamber model)")
+            c.pressure_torr = min(c.pressure_torr, float(p["pressure"]))
+        elif s.type == "vent":
+            c = chamber(p["instrument"])
+            e = _capped(vent_time_s(c.p, float(p.get("pressure", 700.0)), c.pressure_torr), p, "vent law (chamber model)")
+            c.pressure_torr = max(c.pressure_torr, float(p.get("pressure", 700.0)))
+        elif s.type in ("table_rate", "table_stop", "table_move", "table_tilt"):
+            e = _table_step(s, table(p["instrument"]))
+        elif s.type == "bench_rate":
+            e = StepEstimate(float(p.get("settle", 0.0)), basis="settle")
+        elif s.type == "vibrate":
+            e = StepEstimate(_vibration_s(p.get("profile")), basis="vibration profile duration")
+        out.append(e)
+        t += e.duration_s
+    return Estimate(out, prompts)
+
+
+def _capped(duration_s: float, p: dict, basis: str) -> StepEstimate:
+    """A modelled wait, at most its ``timeout`` (the run aborts there)."""
+    timeout = float(p.get("timeout", math.inf))
+    if duration_s > timeout:
+        return StepEstimate(timeout, basis=f"{basis}: not within its timeout, counted at the timeout (the run would abort)")
+    return StepEstimate(duration_s, basis=basis)
+
+
+_TEMPERATURES = {("tvac", "air_temp"): "air", ("tvac", "mount_temp"): "unit", ("acs_board", "temp"): "die"}
+"""(driver, column) -> which temperature of the chamber model a signal reads; thermocouple channels read the unit."""
+
+
+def _stable(s: "Step", t: float, kinds: dict[str, str], chamber) -> StepEstimate:
+    p = s.params
+    hold, band = float(p.get("hold", 0.0)), float(p.get("band", 0.0))
+    try:
+        inst, column, _axis = parse_signal(str(p["signal"]))
+    except KeyError:
+        inst, column = "", ""
+    kind = kinds.get(inst, "")
+    where = "unit" if kind == "thermocouple_reader" and column.startswith("ch") else _TEMPERATURES.get((kind, column))
+    if where is None:
+        return StepEstimate(hold, lower_bound=True, basis=f"no model of {p.get('signal')}: its hold, at least")
+    return _capped(chamber().stable_s(t, where, band, hold), p, f"chamber and unit settling, then the hold (chamber model, {where})")
+
+
+def _table_step(s: "Step", tb: _Table) -> StepEstimate:
+    p = s.params
+    axis = "tilt" if s.type == "table_tilt" else "rotation"
+    if p.get("accel"):
+        tb.accel[axis] = float(p["accel"])
+    if s.type == "table_move" and p.get("rate"):
+        tb.velocity[axis] = abs(float(p["rate"]))
+    accel = tb.accel[axis]
+    if s.type == "table_rate":
+        rate = float(p["rate"])
+        d = abs(rate - tb.rate) / accel + float(p.get("settle", 0.0))
+        if rate != 0 or tb.rate != 0:
+            tb.angle = None  # turned: the angle is no longer known
+        tb.rate = rate
+        return StepEstimate(d, basis="acceleration to the rate (table model), then settle")
+    if s.type == "table_stop":
+        d, tb.rate = abs(tb.rate) / accel, 0.0
+        return StepEstimate(d, basis="braking (table model)")
+    if s.type == "table_tilt":
+        d = move_time_s(float(p["angle"]) - tb.tilt, tb.velocity[axis], accel)
+        tb.tilt = float(p["angle"])
+        return StepEstimate(d, basis="tilt move (table model)")
+    brake = abs(tb.rate) / accel
+    target = float(p["angle"])
+    known = tb.angle
+    tb.rate, tb.angle = 0.0, target
+    if known is None:
+        return StepEstimate(brake, lower_bound=True, basis="move from an unknown angle: braking, at least")
+    return StepEstimate(brake + move_time_s(target - known, tb.velocity[axis], accel), basis="move (table model)")
+
+
+def _vibration_s(profile: object) -> float:
+    """Duration (s) of a vibration profile file; 0 if it cannot be read (validation reports it)."""
+    from bench.errors import InputError
+    from bench.model.vibration import load_vibration
+
+    try:
+        return float(load_vibration(Path(str(profile))).duration_s)
+    except (InputError, OSError, ValueError):
+        return 0.0

@@ -1,0 +1,145 @@
+"""The catalogue tests of ``tests/test_catalog.py`` against a real PostgreSQL server.
+
+The session starts a throwaway server from Debian's ``postgresql`` package (``initdb`` and
+``pg_ctl``; ``dev.py`` installs the package): a data directory in a temporary directory, trust
+authentication, listening on 127.0.0.1 at a free port only (its socket in that directory), no
+fsync. PostgreSQL refuses to run as root, so as root the server runs as ``nobody`` (``runuser``).
+Every test gets a new database. When the server cannot be started the tests skip, saying why.
+"""
+
+from __future__ import annotations
+
+import glob
+import itertools
+import os
+import shutil
+import socket
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from tests.test_catalog import (  # noqa: F401 - collected here again, with the PostgreSQL ``backend`` below
+    Backend,
+    test_dry_runs_appear_with_status_and_verdict,
+    test_killed_run_is_running_then_crashed_on_rebuild,
+    test_queries_filter,
+    test_rebuilt_catalogue_equals_the_live_one,
+    test_unreadable_files_are_reported_and_the_rest_catalogued,
+)
+
+START_TIMEOUT_S = 60
+"""Longest wait (s) for initdb, for the server to accept connections, and for it to stop."""
+SERVER_USER = "bench"
+"""The database superuser initdb creates (trust authentication on 127.0.0.1 only)."""
+
+
+def _pg_bin(name: str) -> str | None:
+    """A PostgreSQL server program: on PATH, else the newest /usr/lib/postgresql/*/bin."""
+    found = shutil.which(name)
+    if found:
+        return found
+    candidates = sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"), key=lambda p: int(Path(p).parts[-3]))
+    return candidates[-1] if candidates else None
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Server:
+    """A throwaway PostgreSQL cluster in ``root`` (``start``, ``stop``); ``port`` on 127.0.0.1."""
+
+    def __init__(self) -> None:
+        self.initdb, self.pg_ctl = _pg_bin("initdb"), _pg_bin("pg_ctl")
+        self.root = Path(tempfile.mkdtemp(prefix="bench-pg-"))
+        self.data = self.root / "data"
+        self.log = self.root / "server.log"
+        self.port = _free_port()
+        self.as_user: list[str] = []
+        self.started = False
+
+    def _run(self, *cmd: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([*self.as_user, *cmd], capture_output=True, text=True, timeout=START_TIMEOUT_S + 30)
+
+    def start(self) -> str:
+        """Start the cluster; returns "" or why it could not be started."""
+        if not (self.initdb and self.pg_ctl):
+            return "PostgreSQL server programs (initdb, pg_ctl) not found: install Debian's 'postgresql' package (dev.py does)"
+        if os.geteuid() == 0:  # initdb and postgres refuse root
+            runuser = shutil.which("runuser")
+            if runuser is None:
+                return "running as root and 'runuser' is not available to start PostgreSQL as another user"
+            self.as_user = [runuser, "-u", "nobody", "--"]
+            shutil.chown(self.root, "nobody")
+        r = self._run(self.initdb, "-D", str(self.data), "-U", SERVER_USER, "--auth=trust", "-E", "UTF8", "--no-sync")
+        if r.returncode != 0:
+            return f"initdb failed: {(r.stderr or r.stdout).strip().splitlines()[-1:]}"
+        options = f"-p {self.port} -k {self.root} -c listen_addresses=127.0.0.1 -c fsync=off -c full_page_writes=off"
+        r = self._run(self.pg_ctl, "-D", str(self.data), "-l", str(self.log), "-w", "-t", str(START_TIMEOUT_S), "-o", options, "start")
+        if r.returncode != 0:
+            tail = self.log.read_text(errors="replace").strip().splitlines()[-3:] if self.log.exists() else []
+            return f"pg_ctl start failed: {(r.stderr or r.stdout).strip()} {tail}"
+        self.started = True
+        return ""
+
+    def stop(self) -> None:
+        if self.started:
+            self._run(self.pg_ctl, "-D", str(self.data), "-m", "fast", "-w", "-t", str(START_TIMEOUT_S), "stop")
+        shutil.rmtree(self.root, ignore_errors=True)
+
+    def url(self, database: str) -> str:
+        return f"postgresql://{SERVER_USER}@127.0.0.1:{self.port}/{database}"
+
+    def create_database(self, name: str) -> str:
+        """A new empty database; returns its URL."""
+        import psycopg
+
+        with psycopg.connect(host="127.0.0.1", port=self.port, user=SERVER_USER, dbname="postgres",
+                             connect_timeout=10, autocommit=True) as conn:
+            conn.execute(f'CREATE DATABASE "{name}"')
+        return self.url(name)
+
+
+@pytest.fixture(scope="session")
+def pg_server() -> Iterator[Server]:
+    server = Server()
+    try:
+        why = server.start()
+        if why:
+            print(f"\nPostgreSQL catalogue tests skipped: {why}")
+            pytest.skip(why)
+        yield server
+    finally:
+        server.stop()
+
+
+_databases = itertools.count(1)
+
+
+@pytest.fixture
+def backend(pg_server: Server) -> Backend:
+    """PostgreSQL: every catalogue a new database of the session's server."""
+    def fresh(label: str) -> str:
+        return pg_server.create_database(f"t{next(_databases)}_{label}")
+
+    def live(_runs: Path) -> tuple[list[str], str]:
+        url = fresh("live")
+        return ["--catalog", url], url
+
+    return Backend("postgresql", fresh, live)
+
+
+def test_server_is_postgresql(pg_server: Server) -> None:
+    """The tests above really ran against PostgreSQL, through the psycopg 3 driver."""
+    from bench.catalog.store import open_catalog, resolve_url
+
+    url = pg_server.create_database("probe")
+    with open_catalog(resolve_url(url)) as cat, cat.transaction() as conn:
+        assert cat.backend == "postgresql" and conn.dialect.driver == "psycopg"
+        assert conn.exec_driver_sql("SHOW server_version").scalar().split(".")[0].isdigit()
+        assert cat.version() == 1
