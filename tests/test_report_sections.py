@@ -302,11 +302,11 @@ def test_verdicts_and_recorded_checks():
         (_summary([_check("sf z", "failed", None, 0.5)], status="aborted"), "FAILED"),
     ]
     for summary, word in cases:
-        v = R.verdict(summary, R.check_results(summary))
+        v = R.run_verdict(summary, R.check_results(summary))
         assert v.word == word, (word, v)
     summary = _summary([new, old, limited])
     assert [c.outcome for c in R.check_results(summary)] == ["recorded", "recorded", "passed"]
-    v = R.verdict(summary, R.check_results(summary))
+    v = R.run_verdict(summary, R.check_results(summary))
     assert v.reasons == ["all 1 checks with limits passed", "2 value(s) recorded without limits (no verdict)"]
     page = Report(f"<h2>1. Verdict and checks</h2>{R.section_verdict(summary, R.check_results(summary))}")
     (rows,) = page.tables("Verdict and checks")

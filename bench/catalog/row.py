@@ -14,7 +14,6 @@ Hashes: ``procedure_sha256`` of the procedure text stored in the file (its utf-8
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from datetime import datetime, timezone
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from bench.record import layout
+from bench.record.checks import run_verdict
 from bench.record.reader import STALE_AFTER_S, RunSummary, StepSummary, read_run_summary, read_stream
 from bench.units import registry
 
@@ -36,11 +36,7 @@ VERDICTS = (VERDICT_PASSED, VERDICT_FAILED, VERDICT_NONE, VERDICT_INCOMPLETE)
 STATUSES = (layout.STATUS_RUNNING, layout.STATUS_COMPLETED, layout.STATUS_ABORTED, layout.STATUS_FAILED, layout.STATUS_CRASHED)
 """Values of the ``status`` column: the writer's statuses and the reader's ``crashed``."""
 
-CHECK_EVENT = "check"
-"""Event kind whose data (JSON) holds a check's value and limits (``min``, ``max``, ``reference``)."""
-JUDGED_STEP_TYPES = ("bit",)
-"""Step types that are a pass/fail judgement by themselves (a built-in test compares a mask)."""
-CATALOG_EVENT_KINDS = (*layout.STEP_EVENT_KINDS, CHECK_EVENT)
+CATALOG_EVENT_KINDS = (*layout.STEP_EVENT_KINDS, layout.EVENT_CHECK, "procedure")
 """The only events a row needs (command/reply traffic is never decoded: it can be most of a file)."""
 
 PRESSURE_UNITS = "Torr"
@@ -71,7 +67,7 @@ def run_row(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_unix: float
         "ended_utc": parse_utc(_text(a, layout.ATTR_ENDED_UTC)),
         "run_time_s": _finite(s.heartbeat_run_time_s),
         "status": s.status,
-        "verdict": verdict(s.status, s.steps, checks_with_limits(s)),
+        "verdict": verdict(s),
         "first_failed_check": failed.name if failed is not None else None,
         "reason": reason(s),
         "min_pressure_torr": p_min,
@@ -80,42 +76,17 @@ def run_row(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_unix: float
     }
 
 
-def verdict(status: str, steps: list[StepSummary], limited_checks: set[int]) -> str | None:
-    """The run's verdict: ``failed`` when any step failed (a check outside its limits, a built-in
-    test, a configuration read-back), even if the run then stopped; else ``incomplete`` when the
-    run did not complete (aborted, failed, crashed); else ``passed`` when at least one check with
-    limits (step indexes ``limited_checks``) or built-in test was judged, ``no verdict`` when none
-    was. None while the run is running."""
-    if status == layout.STATUS_RUNNING:
+def verdict(s: RunSummary) -> str | None:
+    """The run's verdict as :func:`bench.record.checks.run_verdict` gives it (the report shows the
+    same), in lower case; None while the run is running."""
+    if s.status == layout.STATUS_RUNNING:
         return None
-    if first_failed_step(steps) is not None:
-        return VERDICT_FAILED
-    if status != layout.STATUS_COMPLETED:
-        return VERDICT_INCOMPLETE
-    judged = [st for st in steps if st.index in limited_checks or st.type in JUDGED_STEP_TYPES]
-    return VERDICT_PASSED if judged else VERDICT_NONE
+    return run_verdict(s).word.lower()
 
 
 def first_failed_step(steps: Iterable[StepSummary]) -> StepSummary | None:
     """The first step (in execution order) whose outcome is ``failed``."""
     return next((st for st in steps if st.outcome == "failed"), None)
-
-
-def checks_with_limits(s: RunSummary) -> set[int]:
-    """Step indexes of the checks that compared their value with something: a ``min``, a ``max``
-    or a ``reference`` check (from the JSON data of their ``check`` event). A check without any
-    only records a value and is no verdict."""
-    out: set[int] = set()
-    for e in s.events:
-        if e.kind != CHECK_EVENT or not e.data:
-            continue
-        try:
-            d = json.loads(e.data.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError):
-            continue
-        if isinstance(d, dict) and any(d.get(k) is not None for k in ("min", "max", "reference")):
-            out.add(e.step)
-    return out
 
 
 def reason(s: RunSummary) -> str | None:

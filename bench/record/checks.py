@@ -52,7 +52,7 @@ def checks_verdict(counts: Mapping[str, int]) -> str:
     if failed:
         text = f"{_n_checks(failed)} failed" + (f", {passed} passed" if passed else "")
     else:
-        text = f"all {_n_checks(passed)} passed" if not recorded else f"{_n_checks(passed)} passed"
+        text = (f"all {_n_checks(passed)} passed" if passed > 1 else "the check passed") if not recorded else f"{_n_checks(passed)} passed"
     return text + (f"; {recorded} recorded without limits (no verdict)" if recorded else "")
 
 
@@ -197,3 +197,57 @@ def check_json(check: CheckResult) -> dict[str, Any]:
 
 def _finite(v: float | None) -> float | None:
     return v if v is not None and math.isfinite(v) else None
+
+
+def procedure_info(summary: "RunSummary") -> dict[str, Any]:
+    """The ``procedure`` event's data: parameters in force, clock (virtual/wall), planned steps…"""
+    for e in summary.events:
+        if e.kind == "procedure" and e.data:
+            try:
+                info = json.loads(e.data.decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError):
+                return {}
+            return info if isinstance(info, dict) else {}
+    return {}
+
+
+@dataclass
+class Verdict:
+    """The run's verdict: ``word`` (PASSED, FAILED, NO VERDICT or INCOMPLETE) and the ``reasons``
+    behind it, one sentence each."""
+
+    word: str
+    reasons: list[str]
+
+
+def run_verdict(summary: "RunSummary", checks: list["CheckResult"] | None = None) -> Verdict:
+    """FAILED when a check or another step failed (even in a run that did not finish); else
+    INCOMPLETE when the run did not run to its end (aborted, crashed, still running, or fewer steps
+    executed than planned); else NO VERDICT when no check has limits (none, or only recorded values);
+    else PASSED. ``checks``: :func:`check_results` of the summary (read when not given). The one
+    verdict of a run: the report shows it, the catalogue stores it (lower case)."""
+    checks = check_results(summary) if checks is None else checks
+    judged = [c for c in checks if c.outcome in ("passed", "failed")]
+    failed = [c for c in judged if c.outcome == "failed"]
+    recorded = [c for c in checks if c.outcome == layout.OUTCOME_RECORDED]
+    failed_steps = [s for s in summary.steps if s.type not in ("check", "bit") and s.outcome == "failed"]
+    unfinished = []
+    if summary.status != layout.STATUS_COMPLETED:
+        why = summary.abort_reason or summary.status_detail
+        unfinished.append(f"the run is {summary.status}" + (f": {why}" if why else ""))
+    planned = procedure_info(summary).get("steps")
+    if isinstance(planned, int) and len(summary.steps) < planned:
+        unfinished.append(f"{len(summary.steps)} of {planned} steps executed")
+    cut = [s for s in summary.steps if s.outcome in ("interrupted", "running", "aborted")]
+    if cut:
+        unfinished.append("step " + ", ".join(f"{s.index + 1} {s.name} {s.outcome}" for s in cut))
+    extra = [f"{len(recorded)} value(s) recorded without limits (no verdict)"] if recorded else []
+    if failed or failed_steps:
+        reasons = [f"{len(failed)} of {len(judged)} checks failed: {', '.join(c.name for c in failed)}"] if failed else []
+        reasons += [f"step {s.index + 1} {s.name} failed: {s.detail}" for s in failed_steps]
+        return Verdict("FAILED", reasons + unfinished + extra)
+    if unfinished:
+        return Verdict("INCOMPLETE", unfinished + ([f"{len(judged)} checks passed before that"] if judged else []) + extra)
+    if not judged:
+        return Verdict("NO VERDICT", ["no check in this run has limits" if checks else "this run has no checks"] + extra)
+    return Verdict("PASSED", [f"all {len(judged)} checks with limits passed"] + extra)

@@ -36,7 +36,8 @@ from bench import __version__
 from bench.analysis.result import CalibrationResult
 from bench.errors import InputError
 from bench.record import layout
-from bench.record.checks import CheckResult, check_results, display_value, signal_units  # noqa: F401 (re-exported)
+from bench.record.checks import (CheckResult, check_results, display_value, procedure_info, run_verdict,  # noqa: F401 (re-exported)
+                                 signal_units)
 from bench.record.reader import RunSummary, read_run_summary, read_stream
 from bench.report import figures as F
 from bench.report import static as S
@@ -70,9 +71,10 @@ _WINDOW_RE = re.compile(r"rows in window '(?P<name>.*)'$")
 _RATE_SUFFIX = re.compile(r"(?P<rate>[+-](?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?)$")
 _OUTCOME_CLASS = {"passed": "pass", "done": "pass", "completed": "pass", "failed": "fail", "aborted": "fail",
                   "crashed": "fail", "interrupted": "warn", "running": "warn", "recorded": ""}
-NO_VERDICT = "recorded"
+NO_VERDICT = layout.OUTCOME_RECORDED
 """Outcome of a check without limits (and without a reference): its value is recorded, it gives no
 verdict. Runners before this outcome existed wrote ``passed``; the report shows those as recorded too."""
+_VERDICT_CLASS = {"PASSED": "pass", "FAILED": "fail", "INCOMPLETE": "warn", "NO VERDICT": "warn"}
 
 
 # ---- public API -----------------------------------------------------------------------------------
@@ -336,18 +338,6 @@ def _run_time_s(summary: RunSummary) -> float | None:
     return max(times) if times else None
 
 
-def _procedure_info(summary: RunSummary) -> dict[str, Any]:
-    """The ``procedure`` event's data: parameters in force, clock (virtual/wall), ..."""
-    for e in summary.events:
-        if e.kind == "procedure" and e.data:
-            try:
-                info = json.loads(e.data.decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError):
-                return {}
-            return info if isinstance(info, dict) else {}
-    return {}
-
-
 def _utc(text: str) -> datetime | None:
     try:
         return datetime.strptime(text, "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=timezone.utc)
@@ -371,52 +361,11 @@ IDENTITY_LABELS = {layout.ATTR_UNIT_SERIAL: "unit serial", layout.ATTR_UNIT_PART
 """Root attributes naming the unit under test and the station (absent in older files: read as "")."""
 
 
-@dataclass
-class Verdict:
-    """The run's verdict: ``word`` (PASSED, FAILED, NO VERDICT or INCOMPLETE), its CSS class and the
-    ``reasons`` behind it, one sentence each."""
-
-    word: str
-    cls: str
-    reasons: list[str]
-
-
-def verdict(summary: RunSummary, checks: list["CheckResult"]) -> Verdict:
-    """FAILED when a check or another step failed (even in a run that did not finish); else
-    INCOMPLETE when the run did not run to its end (aborted, crashed, still running, or fewer steps
-    executed than planned); else NO VERDICT when no check has limits (none, or only recorded values);
-    else PASSED."""
-    judged = [c for c in checks if c.outcome in ("passed", "failed")]
-    failed = [c for c in judged if c.outcome == "failed"]
-    recorded = [c for c in checks if c.outcome == NO_VERDICT]
-    failed_steps = [s for s in summary.steps if s.type not in ("check", "bit") and s.outcome == "failed"]
-    unfinished = []
-    if summary.status != layout.STATUS_COMPLETED:
-        why = summary.abort_reason or summary.status_detail
-        unfinished.append(f"the run is {summary.status}" + (f": {why}" if why else ""))
-    planned = _procedure_info(summary).get("steps")
-    if isinstance(planned, int) and len(summary.steps) < planned:
-        unfinished.append(f"{len(summary.steps)} of {planned} steps executed")
-    cut = [s for s in summary.steps if s.outcome in ("interrupted", "running", "aborted")]
-    if cut:
-        unfinished.append("step " + ", ".join(f"{s.index + 1} {s.name} {s.outcome}" for s in cut))
-    extra = [f"{len(recorded)} value(s) recorded without limits (no verdict)"] if recorded else []
-    if failed or failed_steps:
-        reasons = [f"{len(failed)} of {len(judged)} checks failed: {', '.join(c.name for c in failed)}"] if failed else []
-        reasons += [f"step {s.index + 1} {s.name} failed: {s.detail}" for s in failed_steps]
-        return Verdict("FAILED", "fail", reasons + unfinished + extra)
-    if unfinished:
-        return Verdict("INCOMPLETE", "warn", unfinished + ([f"{len(judged)} checks passed before that"] if judged else []) + extra)
-    if not judged:
-        return Verdict("NO VERDICT", "warn", ["no check in this run has limits" if checks else "this run has no checks"] + extra)
-    return Verdict("PASSED", "pass", [f"all {len(judged)} checks with limits passed"] + extra)
-
-
 def section_verdict(summary: RunSummary, checks: list["CheckResult"]) -> str:
     """The verdict with its reasons, then one row per check (and built-in test): name, signal,
     statistic, window, value with its unit, limits, outcome."""
-    v = verdict(summary, checks)
-    out = f'<p class="verdict {v.cls}" id="verdict">{esc(v.word)}</p>'
+    v = run_verdict(summary, checks)
+    out = f'<p class="verdict {_VERDICT_CLASS[v.word]}" id="verdict">{esc(v.word)}</p>'
     out += "<ul>" + "".join(f"<li>{esc(r)}</li>" for r in v.reasons) + "</ul>"
     if not checks:
         return out
@@ -452,7 +401,7 @@ def section_summary(summary: RunSummary) -> str:
     (coloured, with the abort reason), mode, operator, host, software, start/end UTC, duration (run
     time; wall time too when the clock was virtual), run file, steps executed of planned."""
     a = summary.attrs
-    info = _procedure_info(summary)
+    info = procedure_info(summary)
     status = summary.status.upper()
     title = _procedure_title(summary.procedure_text)
     rows: list[list[Any]] = [[label, str(a.get(key, "") or "") or Cell("not recorded", "note")] for key, label in IDENTITY_LABELS.items()]

@@ -86,8 +86,9 @@ class RunResult:
 
     @property
     def check_counts(self) -> dict[str, int]:
-        """Checks by outcome: ``passed``, ``failed``, ``recorded`` (no limits, no verdict)."""
-        return check_counts(c["outcome"] for c in self.checks)
+        """Checks and built-in tests by outcome: ``passed``, ``failed``, ``recorded`` (no limits, no
+        verdict); the same steps the report and the catalogue judge the run by."""
+        return check_counts(o.outcome for o in self.outcomes if o.type in ("check", "bit"))
 
     @property
     def verdict(self) -> str:
