@@ -19,6 +19,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent
 VENV = ROOT / ".venv"
 STAMP = VENV / ".bench-install-stamp"
+INSTALL_MODE = "editable_mode=compat"
+"""An editable install through a plain path entry (.pth), not setuptools' import hook: the hook is
+imported by every Python start in the venv (about 13 ms of each `bench` command; docs/benchmarks.md)."""
 BIN = VENV / ("Scripts" if os.name == "nt" else "bin")
 PY = BIN / ("python.exe" if os.name == "nt" else "python")
 
@@ -38,11 +41,13 @@ def ensure_env() -> None:
         result = subprocess.run([sys.executable, "-m", "venv", str(VENV)])
         if result.returncode != 0 or not PY.exists():
             sys.exit("[dev.py] could not create a virtual environment; on Debian/Ubuntu install the 'python3-venv' package")
-    want = hashlib.sha256((ROOT / "pyproject.toml").read_bytes()).hexdigest()
+    # the stamp covers the install command too, so a change of how we install reinstalls
+    want = hashlib.sha256((ROOT / "pyproject.toml").read_bytes() + INSTALL_MODE.encode()).hexdigest()
     if STAMP.exists() and STAMP.read_text().strip() == want:
         return
     _say("installing bench and its dependencies into .venv (once; again when pyproject.toml changes)")
-    cmd = [str(PY), "-m", "pip", "install", "--disable-pip-version-check", "-q", "-e", f"{ROOT}[test]"]
+    cmd = [str(PY), "-m", "pip", "install", "--disable-pip-version-check", "-q", "--config-settings", INSTALL_MODE,
+           "-e", f"{ROOT}[test]"]
     if subprocess.run(cmd, cwd=ROOT).returncode != 0:
         sys.exit("[dev.py] installing dependencies failed (see the pip output above)")
     STAMP.write_text(want + "\n")

@@ -23,6 +23,27 @@ if TYPE_CHECKING:  # imported where used: `bench --help` and `bench --version` s
     from rich.console import Console
 
 
+_PLAIN_COMMANDS = {"validate"}
+"""Commands that print plain lines: their console is a :class:`_LazyConsole`."""
+
+
+class _LazyConsole:
+    """A rich ``Console`` made on first attribute use (``print``, ``width``…; not a context manager):
+    a command that prints plainly (``validate``) never imports rich unless it fails, which is a
+    tenth of its start-up time (docs/benchmarks.md)."""
+
+    def __init__(self, **kwargs: object):
+        self._kwargs = kwargs
+        self._console: "Console | None" = None
+
+    def __getattr__(self, name: str):
+        if self._console is None:
+            from rich.console import Console
+
+            self._console = Console(**self._kwargs)
+        return getattr(self._console, name)
+
+
 PARAM_HELP = ("override a procedure parameter, with units where it has them, e.g. -p cold=-20degC -p hold=30min "
               "(repeatable; default: the procedure's values)")
 
@@ -231,10 +252,13 @@ def main(argv: list[str] | None = None) -> int:
         # drivers turn pymodbus's failures into typed errors; its own log lines would only repeat them
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
         logging.getLogger("can").setLevel(logging.CRITICAL)
-    from rich.console import Console
+    if args.command in _PLAIN_COMMANDS:
+        console = _LazyConsole(stderr=False, highlight=False)
+    else:
+        from rich.console import Console
 
-    console = Console(stderr=False, highlight=False)
-    err = Console(stderr=True, highlight=False)
+        console = Console(stderr=False, highlight=False)
+    err = _LazyConsole(stderr=True, highlight=False)  # only ever asked to print
     try:
         if args.command == "run":
             return cmd_run(args, console)

@@ -8,15 +8,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from typing import TYPE_CHECKING
 
 from bench import __version__
-from bench.analysis.progress import Progress
 from bench.cli_common import add_force, check_output, epilog, output_file
 from bench.errors import EXIT_OK, InputError
 
@@ -136,6 +133,10 @@ def _print_tables(console: Console, tables) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
+    import json
+    from datetime import datetime, timezone
+
+    from bench.analysis.progress import Progress
     from bench.replay.recording import file_sha256
 
     check_output(args.output, "-o", force=args.force, inputs=[args.data])
@@ -194,6 +195,7 @@ def cmd_import(args: argparse.Namespace, console: Console) -> int:
 
 
 def cmd_report(args: argparse.Namespace, console: Console) -> int:
+    from bench.analysis.progress import Progress
     from bench.report.run_report import write_report
 
     check_output(args.output, "-o", force=args.force, inputs=[args.run])
@@ -205,7 +207,10 @@ def cmd_report(args: argparse.Namespace, console: Console) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
+    import json
+
     from bench.analysis.diagnose import diagnose, write_report
+    from bench.analysis.progress import Progress
 
     for path, option in ((args.report, "--report"), (args.output, "-o")):
         check_output(path, option, force=args.force, inputs=[args.data, args.model])
