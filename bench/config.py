@@ -244,6 +244,8 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
         if not 0.05 <= poll <= 3600:
             errors.append(InputError("expected a poll interval between 50 ms and 1 h", n.location, "poll_interval"))
     limits = _instrument_limits(driver, f.node_at("limits"), errors)
+    if driver == "tvac" and (n := f.node_at("safe_set_point")) is not None:
+        _check_safe_set_point(safe_sp, limits, n, errors)
     reconnect = 30.0
     if (n := f.node_at("reconnect_timeout")) is not None:
         reconnect = _quantity(n, "s", "reconnect_timeout", errors, reconnect)
@@ -288,6 +290,18 @@ def _compensation(driver: str | None, node: Node | None, base: Path, errors: lis
     except InputError as exc:
         errors.append(exc if exc.location is not None else InputError(exc.message, node.location, "calibration"))
     return None
+
+
+def _check_safe_set_point(safe_c: float, limits: dict[str, tuple], node: Node, errors: list[InputError]) -> None:
+    """The chamber's safe set point (degC), written on every abort, must lie within its set-point
+    limits (the tvac defaults narrowed by this config's ``limits:``): an abort must not heat or
+    cool the unit beyond what a procedure may ask."""
+    from bench.procedure.limits import effective_limits
+
+    lo, hi, src = effective_limits("tvac", {"set_point": limits["set_point"]} if "set_point" in limits else {})["set_point"]
+    if (lo is not None and safe_c < lo) or (hi is not None and safe_c > hi):
+        errors.append(InputError(f"{safe_c:g} degC is outside the chamber's set-point limits {lo:g}..{hi:g} degC ({src}): "
+                                 "the safe set point is written on every abort", node.location, "safe_set_point"))
 
 
 def _instrument_limits(driver: str | None, node: Node | None, errors: list[InputError]) -> dict[str, tuple]:
