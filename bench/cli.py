@@ -392,7 +392,9 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
         elif state["signals"] == 2:
             runner.notices.append(f"[yellow]{name} again: the safe-state sequence is running and will not be skipped[/]")
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    # SIGHUP (the terminal closed, the ssh session dropped) takes the same path as Ctrl-C
+    stops = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()))
+    old = {s: signal.signal(s, on_signal) for s in stops}
     pause_signals = [getattr(signal, n) for n in ("SIGUSR1", "SIGTSTP") if hasattr(signal, n)]
     old_pause = {s: signal.signal(s, on_pause) for s in pause_signals}
     try:

@@ -173,7 +173,7 @@ def test_kill_9_during_realtime_run_leaves_readable_file(tmp_path):
     assert r.returncode == 0 and ("crashed" in status_line or "running" in status_line), status_line
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
 def test_signal_aborts_to_safe_state(tmp_path, sig):
     p, runs = _start_realtime(tmp_path, 60)
     try:
