@@ -591,6 +591,29 @@ def cmd_lab_init(args: argparse.Namespace, console: Console) -> int:
 
 
 # ---- sim serve --------------------------------------------------------------------------------
+def _refuse_taken_ports(config, names: list[str], path: Path) -> None:
+    """:class:`InputError` (exit 2) when a TCP port the served simulators listen on is taken (by
+    another 'bench sim serve' on the same config, or any program): checked before any starts."""
+    import errno
+    import socket
+
+    for name in names:
+        sim = config.instruments[name].sim
+        if sim is None:
+            continue
+        port, kind = {"tvac": (sim.modbus_port if sim.transport != "rtu" else 0, "Modbus TCP"),
+                      "thermocouple_reader": (sim.scpi_port, "SCPI")}.get(sim.backend, (0, ""))
+        if not port:
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the servers bind: TIME_WAIT is no obstacle
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError as exc:
+                why = "is in use (another 'bench sim serve'?)" if exc.errno == errno.EADDRINUSE else f"cannot be bound: {exc.strerror}"
+                raise InputError(f"{path}: {name}: {kind} port {port} {why}", None, "--config") from None
+
+
 def cmd_sim_serve(args: argparse.Namespace, console: Console) -> int:
     from bench.clock import WallClock
     from bench.config import load_config
@@ -602,6 +625,7 @@ def cmd_sim_serve(args: argparse.Namespace, console: Console) -> int:
     unknown = [n for n in names if n not in config.instruments]
     if unknown:
         raise InputError(f"no instrument {unknown[0]!r} in {args.config} (has: {', '.join(config.instruments)})", None, "--instrument")
+    _refuse_taken_ports(config, names, args.config)
     clock = WallClock()
     try:
         sims = build_devices(config, clock, names, fixed_ports=True)

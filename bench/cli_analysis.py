@@ -110,12 +110,15 @@ def _add_map_option(p: argparse.ArgumentParser) -> None:
 
 def _load_data(args: argparse.Namespace):
     """The dataset of ``args.data`` (``--map``: a foreign HDF5/netCDF-4 file); how a mapped file was
-    read (time source, dropped rows) goes to stderr, so ``--json`` output stays clean."""
+    read (time source, dropped rows) goes to stderr, so ``--json`` output stays clean. A value no
+    measurement has (|v| > 1e9, e.g. 1e300) is refused at its row (:func:`check_magnitudes`)."""
+    from bench.analysis.dataset import check_magnitudes
     from bench.analysis.foreign import load_data
 
     from rich.console import Console
 
     ds, notes = load_data(args.data, args.map)
+    check_magnitudes(ds)
     for note in notes:
         Console(stderr=True, highlight=False).print(f"note: {note}", markup=False, soft_wrap=True)
     return ds

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import InputError, InputErrors, Location
+from bench.inputs import CONFIG_ROOTS, confined_path
 from bench.identity import check_identity_text, parse_iso_date
 from bench.model.imu_simple import ImuModelParams
 from bench.sim.world import WorldParams
@@ -283,8 +284,11 @@ def _compensation(driver: str | None, node: Node | None, base: Path, errors: lis
         return None
     from bench.model.compensation import load_compensation
 
+    paths = [_named_file(n.value, base, "calibration file", n.location, "calibration", errors) for n in items]
+    if None in paths:
+        return None
     try:
-        return load_compensation([base / n.value for n in items])
+        return load_compensation(paths)
     except InputErrors as exc:
         errors.extend(exc.errors)
     except InputError as exc:
@@ -387,15 +391,28 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
     if sim.node_id is not None and not 1 <= sim.node_id <= 126:
         errors.append(InputError("expected a CANopen node id 1..126 (the tilt axis takes the next one)", f.map["node_id"].location, "node_id"))
     model_rel = f.get("sensor_model", str)
-    if model_rel is not None:
-        sim.model_path = str(base / model_rel)
-        model = _sensor_model(base / model_rel, f.map["sensor_model"].location, errors)
+    model_path = _named_file(model_rel, base, "sensor model", f.map["sensor_model"].location, "sensor_model", errors) \
+        if model_rel is not None else None
+    if model_path is not None:
+        sim.model_path = str(model_path)
+        model = _sensor_model(model_path, f.map["sensor_model"].location, errors)
         if isinstance(model, ImuModelParams):
             sim.model = model
         else:
             sim.sensor_spec = model
     f.check_unknown()
     return sim
+
+
+def _named_file(name: str, base: Path, what: str, ref: Location, key: str, errors: list[InputError]) -> Path | None:
+    """A file named by the config at ``ref``: inside the config's directory tree or ``configs/``
+    (bench/inputs.py); None, with a located error, when it is not."""
+    try:
+        return confined_path(name, base=base, roots=CONFIG_ROOTS, what=what,
+                             where="the config's directory and configs/", location=ref, field=key)
+    except InputError as exc:
+        errors.append(InputError(f"{what} {name!r}: {exc.message}", ref, key))
+        return None
 
 
 def _other_sensor_model(path: Path, ref: Location, errors: list[InputError]) -> Any:

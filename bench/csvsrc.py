@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.errors import InputError, Location
+from bench.inputs import CSV_LIMIT_BYTES, read_input_bytes
 
 _META = re.compile(r"^\s*#\s*([A-Za-z_][A-Za-z0-9_]*)\s*:\s*(.*?)\s*$")
 
@@ -36,12 +37,7 @@ class CsvTable:
 def read_csv_table(path: str | Path) -> CsvTable:
     """Parse ``path`` into a :class:`CsvTable`; :class:`InputError` when it cannot be read."""
     p = Path(path)
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise InputError("CSV file not found", Location(p)) from None
-    except OSError as exc:
-        raise InputError(f"cannot read CSV file: {exc}", Location(p)) from None
+    data = read_input_bytes(p, limit_bytes=CSV_LIMIT_BYTES, what="CSV file")  # regular files of at most 256 MiB
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

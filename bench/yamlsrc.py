@@ -14,6 +14,7 @@ from typing import Any, Iterator
 import yaml
 
 from bench.errors import InputError, Location
+from bench.inputs import YAML_LIMIT_BYTES, read_input_bytes
 
 
 @dataclass
@@ -116,12 +117,7 @@ def _convert(node: yaml.Node, path: str, budget: _Budget) -> Node:
 def load_yaml(path: str | Path, what: str = "file") -> Source:
     """Read and parse ``path``; any problem is an :class:`InputError` located in the file."""
     p = Path(path)
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{what} not found", Location(p)) from None
-    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
-        raise InputError(f"cannot read {what}: {exc}", Location(p)) from None
+    data = read_input_bytes(p, limit_bytes=YAML_LIMIT_BYTES, what=what)  # regular files of at most 1 MiB
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -103,6 +103,60 @@ class Dataset:
         return Dataset({k: v[mask] for k, v in self.columns.items()}, dict(self.meta), self.source, lines)
 
 
+MAX_ABS_VALUE = 1e9
+"""Largest magnitude of a measured value (deg/s, deg, °C, Torr, g) the analyses take: no sensor,
+table or chamber reading comes near it, and squares and polynomial products of larger values
+(1e300) overflow float64 in the fits."""
+
+
+def _where(ds: Dataset, name: str, row: int | None = None) -> Location:
+    """The location of column ``name`` (at ``row``: its CSV line when known) in ``ds``."""
+    line = None if row is None or ds.line_numbers is None else int(ds.line_numbers[row])
+    return Location(ds.source or "dataset", line)
+
+
+def check_magnitudes(ds: Dataset) -> None:
+    """Refuse a measured value beyond :data:`MAX_ABS_VALUE` (times excepted): :class:`InputError`
+    at the first such row (its CSV line when known) and column."""
+    for name, v in ds.columns.items():
+        if name in ("time_s", "power_on_s"):
+            continue
+        a = np.asarray(v, dtype=float)
+        big = np.isfinite(a) & (np.abs(a) > MAX_ABS_VALUE)
+        if big.any():
+            i = int(np.argmax(big))
+            raise InputError(f"value {float(a[i]):g} is beyond ±{MAX_ABS_VALUE:g}: not a measurement "
+                             f"({int(big.sum())} such row(s))", _where(ds, name, i), name)
+
+
+def constant_columns(ds: Dataset, names: list[str]) -> list[str]:
+    """The columns of ``names`` whose finite values are all one value (or that have none)."""
+    out = []
+    for name in names:
+        a = np.asarray(ds.columns[name], dtype=float)
+        a = a[np.isfinite(a)]
+        if a.size == 0 or float(np.ptp(a)) == 0.0:
+            out.append(name)
+    return out
+
+
+def constant_text(ds: Dataset, name: str) -> str:
+    """``"gyro_x_dps is constant (0 in all 400 rows)"``."""
+    a = np.asarray(ds.columns[name], dtype=float)
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        return f"{name} has no finite value"
+    return f"{name} is constant ({float(a[0]):g} in all {a.size} rows)"
+
+
+def refuse_nothing_to_fit(ds: Dataset, names: list[str], what: str) -> None:
+    """:class:`InputError` ``nothing to fit: ...`` when every column of ``names`` is constant
+    (all-zero, a single sample, a dead channel): ``what`` says what the analysis needs."""
+    if names and len(constant_columns(ds, names)) == len(names):
+        raise InputError(f"nothing to fit: {'; '.join(constant_text(ds, n) for n in names)}; {what}",
+                         _where(ds, names[0]), names[0])
+
+
 def load_dataset(path: str | Path, mapping=None) -> Dataset:
     """A run file (``.h5``/``.hdf5``, or any file starting with the HDF5 signature) or a measured-data
     CSV as a :class:`Dataset`. Bad files raise :class:`InputError` with file:line and the reason.

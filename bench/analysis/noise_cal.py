@@ -47,7 +47,7 @@ from bench.analysis.allan import (
     read_noise_terms,
     select_m,
 )
-from bench.analysis.dataset import AXES, GYRO, REF_RATE, Dataset
+from bench.analysis.dataset import AXES, GYRO, REF_RATE, Dataset, refuse_nothing_to_fit
 from bench.analysis.result import CalibrationResult, ResultTable
 from bench.errors import InputError, Location
 
@@ -142,7 +142,8 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | str | No
     use_axes = _axes(ds, axes)
     n = len(ds)
     if n < MIN_SAMPLES:
-        raise InputError(f"{src}: {n} rows; the noise analysis needs at least {MIN_SAMPLES} static samples")
+        raise InputError(f"nothing to fit: {n} row(s); the noise analysis needs at least {MIN_SAMPLES} static samples",
+                         Location(src), GYRO[use_axes[0]])
     fs = ds.sample_rate_hz
     if not (math.isfinite(fs) and fs > 0):
         raise InputError(f"{src}: cannot tell the sample rate (sample_rate_hz = {fs!r})", field="time_s")
@@ -226,6 +227,8 @@ def static_data(ds: Dataset, skip_s: float = 0.0, axes: Sequence[str] | str | No
             loc = Location(src, int(ds.line_numbers[row])) if ds.line_numbers is not None else None
             raise InputError(f"{'' if loc else src + ': '}row {row + 1}: value {v[bad[0]]!r} is not a finite rate",
                              loc, col)
+    refuse_nothing_to_fit(seg, [GYRO[a] for a in use_axes], "the noise analysis needs a gyro output that varies "
+                          "(a constant output is a dead channel or noise below one output step)")
     return StaticData(seg, float(fs), notes, a0, b0)
 
 

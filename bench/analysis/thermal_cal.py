@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.analysis.dataset import AXES, GYRO, REF_RATE, Dataset
+from bench.analysis.dataset import AXES, GYRO, REF_RATE, Dataset, refuse_nothing_to_fit
 from bench.analysis.rate_transfer import RATE_TOL_DPS, check_options, jfloat, opt_axes, opt_float, opt_int
 from bench.analysis.result import CalibrationResult, ResultTable
 from bench.errors import InputError, Location
@@ -220,16 +220,22 @@ def calibrate(ds: Dataset, degree: int = DEGREE, **opts: Any) -> CalibrationResu
         if np.any(early & use):
             notes.append(f"{int(np.sum(early & use))} row(s) in the first {warmup:g} s after power-on dropped (warm-up, NPSAT1 Sec. IV-A)")
         use &= ~early
-    axes_json: dict[str, Any] = {}
+    selected: dict[str, np.ndarray] = {}
     for a in axes:
-        g = ds[GYRO[a]]
-        sel = use & np.isfinite(g)
-        T, y = T_all[sel], g[sel]
+        sel = selected[a] = use & np.isfinite(ds[GYRO[a]])
+        T = T_all[sel]
         if T.size < degree + 2:
-            raise InputError(f"axis {a}: {T.size} usable row(s); a degree-{degree} fit needs at least {degree + 2}", where, GYRO[a])
+            raise InputError(f"nothing to fit: axis {a}: {T.size} usable row(s); a degree-{degree} fit needs at least "
+                             f"{degree + 2}", where, GYRO[a])
         if np.unique(T).size < degree + 1 or float(np.ptp(T)) <= 0:
             raise InputError(f"axis {a}: the temperature does not vary enough for a degree-{degree} polynomial "
                              f"({np.unique(T).size} distinct value(s) from {T.min():g} to {T.max():g} °C)", where, "temp_c")
+    refuse_nothing_to_fit(ds.select(use), [GYRO[a] for a in axes],
+                          "the thermal calibration needs a gyro output that changes with temperature")
+    axes_json: dict[str, Any] = {}
+    for a in axes:
+        sel = selected[a]
+        T, y = T_all[sel], ds[GYRO[a]][sel]
         c, cov, resid = poly_fit(T, y, degree)
         rho = lag1_autocorrelation(resid)
         rho_used = min(max(rho, 0.0), MAX_RHO)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 from bench.errors import InputError, InputErrors, Location
+from bench.inputs import PROCEDURE_ROOTS, confined_path
 from bench.procedure.limits import check_step_limits
 from bench.procedure.schema import BLOCK_TYPES, REQUIREMENTS, SCHEMA_ID, STEP_TYPES, FieldSpec
 from bench.procedure.signals import DEFAULT_KINDS, signal_units
@@ -407,7 +408,11 @@ class _Expander:
         if not isinstance(node.value, str):
             self.errors.append(InputError("expected the path of a vibration file", node.location, fname))
             return None
-        path = _resolve(doc, node.value)
+        try:
+            path = _resolve(doc, node.value, "vibration file", node.location, fname)
+        except InputError as exc:
+            self.errors.append(exc)
+            return None
         if path is None:
             self.errors.append(InputError("expected a file name without NUL characters", node.location, fname))
             return None
@@ -537,7 +542,11 @@ class _Expander:
         if rel is None:
             return
         ploc = f.map["procedure"].location
-        target = _resolve(doc, rel)
+        try:
+            target = _resolve(doc, rel, "procedure", ploc, "procedure")
+        except InputError as exc:
+            self.errors.append(exc)
+            return
         if target is None:
             self.errors.append(InputError("expected a file name without NUL characters", ploc, "procedure"))
             return
@@ -712,12 +721,17 @@ class _Expander:
         return None
 
 
-def _resolve(doc: _Doc, rel: str) -> Path | None:
-    """``rel`` relative to the directory of ``doc``'s file, absolute; None for a name no file can have."""
-    try:
-        return (doc.src.path.parent / rel).resolve()
-    except (OSError, ValueError):  # ValueError: embedded NUL byte
+def _resolve(doc: _Doc, rel: str, what: str, loc: Location, fname: str) -> Path | None:
+    """``rel`` relative to the directory of ``doc``'s file, absolute; None for a name no file can have.
+    :class:`InputError` at ``loc`` when it leaves the procedure's directory tree, the ``configs/``
+    next to that directory (a lab's procedures/ beside its configs/) and the project's ``procedures/``
+    and ``configs/`` (bench/inputs.py)."""
+    if "\0" in rel:
         return None
+    base = doc.src.path.parent
+    return confined_path(rel, base=base, roots=(*PROCEDURE_ROOTS, base.parent / "configs"), what=what,
+                         where="the procedure's directory, the configs/ beside it and the project's procedures/ and configs/",
+                         location=loc, field=fname)
 
 
 def _called_from(sites: list[Location]) -> str:

@@ -3,7 +3,7 @@
 Wiring in ``bench/cli.py``: ``add_replay_parser(sub)`` in ``build_parser`` and
 ``if args.command == "replay": return cmd_replay(args, console)`` in ``main``.
 Exit codes: 0 the replay matches, 1 it diverged (report of the first divergence and a count of
-the rest), 2 the file cannot be replayed (one line).
+the rest), 2 the file cannot be replayed or ``--runs-dir`` cannot take the replay's file (one line).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                       "bench replay RUN.h5 --procedure procedures/startup_profile.yaml --runs-dir /tmp/replays",
                       ok="the replay matches the recording",
                       failed="it diverged: the first divergence (step, instrument, expected vs got bytes) and a count of the rest",
-                      bad="the file cannot be replayed (not a run file, no recorded exchanges, bad --procedure): one line"))
+                      bad="the file cannot be replayed (not a run file, no recorded exchanges, bad --procedure) or --runs-dir cannot take the replay's file: one line"))
     rp.add_argument("run_file", type=Path, help="run file (.h5) from bench run, with --sim or on hardware")
     rp.add_argument("--procedure", type=Path, default=None,
                     help="replay this procedure instead of the one stored in the run file (default: the stored one)")
@@ -42,10 +42,15 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
 def cmd_replay(args: argparse.Namespace, console: Console) -> int:
     import logging
 
+    from bench.record import check_destination
     from bench.replay.run import replay
 
     logging.getLogger("canopen").setLevel(logging.CRITICAL)  # SDO aborts become typed errors in the report
 
+    # a runs directory that cannot take the replay's file is bad input (exit 2), refused before
+    # the replay, never a failed write mid-replay (exit 1 means "diverged"); the replay's file is
+    # about the size of the recording
+    check_destination(args.runs_dir, args.run_file.stat().st_size if args.run_file.is_file() else 0)
     result = replay(args.run_file, args.procedure, args.runs_dir)
     console.print(result.report(), markup=False, highlight=False, soft_wrap=True)
     return EXIT_OK if result.ok else EXIT_FAILED

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.analysis.dataset import ACCEL, AXES, GYRO, REF_RATE, Dataset
+from bench.analysis.dataset import ACCEL, AXES, GYRO, REF_RATE, Dataset, constant_columns, constant_text, refuse_nothing_to_fit
 from bench.errors import InputError
 
 MIN_ROWS = 200
@@ -153,6 +153,8 @@ class Prepared:
     """What limited the bin length (empty when not binned or at :data:`BIN_MAX_S`)."""
     motion: tuple[int, int] = (0, 0)
     """(rows, stretches) left out because the unit was being moved (:func:`motion_rows`)."""
+    left_out: list[str] = field(default_factory=list)
+    """Gyro columns left out because they hold one value (``"gyro_x_dps is constant (0 in all 400 rows)"``)."""
 
     @property
     def n(self) -> int:
@@ -166,6 +168,8 @@ class Prepared:
             moved = (f"; left out {self.motion[0]:,} rows in {self.motion[1]} stretch(es) where the unit was moved "
                      f"(gyro > {MOTION_SIGMA:g} robust σ off its running median or |specific force| off by > "
                      f"{MOTION_G:g} g, ±{MOTION_PAD_S:g} s)")
+        if self.left_out:
+            moved += "; left out " + "; ".join(self.left_out)
         if self.bin_rows <= 1:
             return f"analysed {self.n:,} rows at {self.fs:.4g} Hz" + moved
         why = f", {self.bin_reason}" if self.bin_reason else ""
@@ -214,6 +218,10 @@ def prepare(ds: Dataset) -> Prepared:
         raise InputError(f"{ds.source}: diagnose needs at least {MIN_ROWS} rows with finite time and gyro values, "
                          f"got {int(ok.sum())}")
     every = bool(ok.all())
+    usable = ds if every else ds.select(ok)
+    refuse_nothing_to_fit(usable, [GYRO[a] for a in axes], "diagnose needs a gyro output that varies")
+    dead = constant_columns(usable, [GYRO[a] for a in axes])
+    axes = [a for a in axes if GYRO[a] not in dead]
     t = t if every else t[ok]
     if np.any(np.diff(t) <= 0):
         raise InputError(f"{ds.source}: time_s must increase from row to row")
@@ -268,7 +276,8 @@ def prepare(ds: Dataset) -> Prepared:
     prep = Prepared(source=ds.source, t=t, fs=fs, axes=axes, gyro=gyro, ref=ref, temp=temp, pressure=pressure,
                     power_on=col("power_on_s"), accel=accel, angle=col("table_angle_deg"),
                     latitude=ds.latitude_deg(), blocks=Blocks(n, length), present=present,
-                    bin_rows=k, raw_rows=raw_rows, raw_fs=raw_fs, bin_reason=why, motion=motion)
+                    bin_rows=k, raw_rows=raw_rows, raw_fs=raw_fs, bin_reason=why, motion=motion,
+                    left_out=[constant_text(usable, c) for c in dead])
     prep.table_axis = _table_axis(prep)
     if ref is not None:
         prep.blocks.balance(ref)
