@@ -1,7 +1,9 @@
 """What every driver shares: its timeout, retries of idempotent reads, typed errors, safe state.
 
 A driver subclasses :class:`Driver`, names its ``kind``, says whether it ``streams`` frames, and
-implements ``identify()``, ``safe_state()`` and ``close()``. Reads go through
+implements ``identify()``, ``safe_state() -> str`` (what the instrument was told) and ``close()``:
+the runner's ``bench.runner.instruments.Instrument`` protocol; a part of a composite instrument
+(the F4 controller inside ``tvac``) leaves the first two to the composite. Reads go through
 :meth:`Driver.read_retrying`: one attempt function, called again only when it raises
 :class:`Transient` (a lost link, a "busy" answer, a reply that never came) and only as many
 times as the driver's ``read_attempts`` allows. Writes and commands with side effects are
@@ -80,14 +82,6 @@ class Driver:
         """Serial bit rate of the link (bit/s), None when the link is not a serial port."""
         rate = getattr(self.port, "baudrate", None)
         return int(rate) if rate else None
-
-    def identify(self) -> dict[str, str]:
-        """Identity strings (model, serial, firmware…) for the run file."""
-        raise NotImplementedError
-
-    def safe_state(self) -> None:
-        """Bring the instrument where nothing can be harmed; must work after a fault."""
-        raise NotImplementedError
 
     def close(self) -> None:
         """Release the link."""
