@@ -53,10 +53,11 @@ def ensure_env() -> None:
     STAMP.write_text(want + "\n")
 
 
-TEST_TOOLS = {"mbpoll": "mbpoll", "pg_ctlcluster": "postgresql"}
+TEST_TOOLS = {"mbpoll": "mbpoll", "pg_ctlcluster": "postgresql", "chromium": "chromium"}
 """Debian packages of third-party programs the tests use when present (command -> package): protocol
 clients, and the PostgreSQL server the catalogue tests start a throwaway cluster of (its initdb and
-pg_ctl live in /usr/lib/postgresql/*/bin, off PATH; pg_ctlcluster comes with the server)."""
+pg_ctl live in /usr/lib/postgresql/*/bin, off PATH; pg_ctlcluster comes with the server), and the
+browser the web station's tests drive with Playwright (tests/browser.py)."""
 
 
 def ensure_test_tools() -> None:

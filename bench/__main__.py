@@ -1,7 +1,28 @@
-"""``python -m bench``: the same as the ``bench`` console script."""
+"""``python -m bench`` and the ``bench`` console script (``bench.__main__:entry``).
+
+The stop signals (SIGINT, SIGTERM, SIGHUP) are handled before anything else is imported
+(:mod:`bench.startup_signals`): a Ctrl-C or SIGTERM in the first moments gives one line and exit
+code 1, not a traceback. ``bench.cli.main`` gives other commands Python's own handling back.
+"""
 
 import sys
 
-from bench.cli import main
 
-sys.exit(main())
+def entry() -> int:
+    """Run the ``bench`` command line with the start-up signal handler installed first."""
+    from bench.startup_signals import StartupSignals, StoppedDuringStartup
+
+    guard = StartupSignals.install()
+    try:
+        from bench.cli import main
+
+        return main()
+    except StoppedDuringStartup as exc:
+        print(f"bench: {exc}", file=sys.stderr)
+        return 1  # bench.errors.EXIT_FAILED, not imported: this may be the import that was stopped
+    finally:
+        guard.uninstall()
+
+
+if __name__ == "__main__":
+    sys.exit(entry())

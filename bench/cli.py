@@ -18,6 +18,7 @@ from bench import __version__
 from bench.cli_common import Parser as _Parser
 from bench.cli_common import add_force, epilog, quantity
 from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, KNOWN_ERRORS, InputError, InputErrors
+from bench.startup_signals import STOP_SIGNALS, StartupSignals, StoppedDuringStartup
 
 if TYPE_CHECKING:  # imported where used: `bench --help` and `bench --version` stay light (docs/benchmarks.md)
     from rich.console import Console
@@ -144,13 +145,19 @@ def build_parser() -> argparse.ArgumentParser:
         description="Summary of a run file: procedure, operator, unit, status (running, completed, aborted, crashed), "
                     "instruments, steps and their outcomes, checks, streams (rows, rate, span) and the last events.",
         epilog=epilog("bench inspect runs/20261123T101500Z_startup_profile.h5 --events 100",
-                      ok="the summary was printed, whatever the run's own status",
+                      "bench inspect runs/20261123T101500Z_startup_profile.h5 --verify",
+                      ok="the summary was printed, whatever the run's own status; with --verify: every chunk passed its checksum",
+                      failed="with --verify only: a chunk is damaged (its stream and run times are printed), or the file "
+                             "has no checksums (written before them: unverified)",
                       bad="not a run file or unreadable (one line saying why)"))
     i.add_argument("run_file", type=Path, help="run file (.h5) of 'bench run', 'bench import' or 'bench replay'")
     i.add_argument("--events", type=int, default=40, help="how many of the last events to list (default 40; instrument traffic, "
                                                           "command and reply events, is summarised per instrument, not listed)")
     i.add_argument("--traffic", action="store_true", help="also list the command and reply events (default: summarised per instrument)")
     i.add_argument("--json", action="store_true", help="print one JSON object instead of tables (fields: docs/run-file.md)")
+    i.add_argument("--verify", action="store_true", help="read every chunk of every stream and of the event log and check its "
+                                                         "Fletcher-32 checksum; print per stream verified, failed (rows and run "
+                                                         "times) or unverified (docs/run-file.md)")
 
     c = sub.add_parser(
         "calibrate-bench", help="fit the stepper bench speed calibration n = k(1/v - b) from rotation timings",
@@ -203,6 +210,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_analysis_parsers(sub)
     add_catalog_parsers(sub)
+    from bench.cli_fleet import add_fleet_parser
+
+    add_fleet_parser(sub)
+    from bench.cli_web import add_serve_parser
+
+    add_serve_parser(sub)
 
     sk = sub.add_parser(
         "soak", help="run the procedure library back to back on the simulated lab with random faults",
@@ -259,9 +272,15 @@ def main(argv: list[str] | None = None) -> int:
 
         console = Console(stderr=False, highlight=False)
     err = _LazyConsole(stderr=True, highlight=False)  # only ever asked to print
+    if args.command != "run" and StartupSignals.current is not None:
+        StartupSignals.current.uninstall()  # the other commands keep Python's own Ctrl-C (bench/__main__.py)
     try:
         if args.command == "run":
-            return cmd_run(args, console)
+            guard = StartupSignals.install()  # stop signals until the runner's handlers: one line, no half-made file
+            try:
+                return cmd_run(args, console)
+            finally:
+                guard.uninstall()
         if args.command in ("validate", "plan"):
             from bench.cli_procedure import cmd_plan, cmd_validate
 
@@ -290,10 +309,18 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_soak(args, console)
         if args.command == "sim" and args.sim_command == "serve":
             return cmd_sim_serve(args, console)
+        if args.command == "serve":
+            from bench.cli_web import cmd_serve
+
+            return cmd_serve(args, console)
         if args.command in ("runs", "catalog"):
             from bench.cli_catalog import cmd_catalog
 
             return cmd_catalog(args, console)
+        if args.command == "fleet":
+            from bench.cli_fleet import cmd_fleet
+
+            return cmd_fleet(args, console)
         parser.print_help()
         return EXIT_BAD_INPUT
     except InputErrors as exc:
@@ -312,6 +339,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         err.print(f"bench: {exc}", markup=False, soft_wrap=True)
         return EXIT_FAILED
+    except StoppedDuringStartup as exc:
+        err.print(f"bench: {exc}", markup=False, soft_wrap=True)
+        return EXIT_FAILED
     except KeyboardInterrupt:
         err.print("bench: interrupted")
         return EXIT_FAILED
@@ -326,6 +356,7 @@ def main(argv: list[str] | None = None) -> int:
 def cmd_run(args: argparse.Namespace, console: Console) -> int:
     from bench.cli_procedure import parse_params
     from bench.validate import load_checked
+    from bench.procedure.estimate import run_file_bytes
     from bench.record import check_destination
     from bench.runner.operator import Operator
     from bench.runner.progress import RichProgress
@@ -362,17 +393,20 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
             ])
     fault_spec = None
     if args.inject_faults is not None:
-        from bench.faults import parse_fault_spec
+        from bench.faults import parse_fault_spec, plan_faults
 
         if not args.sim:
             raise InputError("faults can only be injected into simulated runs; add --sim", None, "--inject-faults")
         fault_spec = parse_fault_spec(args.inject_faults)
-    check_destination(args.runs_dir, _estimate_bytes(procedure))
+        # the faults' targets checked against this procedure's instruments before a run file exists
+        plan_faults(fault_spec, {n: config.instruments[n].driver for n in procedure.instruments}, procedure.estimated_duration_s())
+    check_destination(args.runs_dir, run_file_bytes(procedure))
 
     session = start_run(procedure, config, procedure_path=args.procedure, config_path=args.config, runs_dir=args.runs_dir,
                         sim=args.sim, realtime=args.realtime, operator=operator, progress=RichProgress(console),
                         operator_name=args.operator, fault_spec=fault_spec, identity=identity, overdue=overdue,
-                        accept_overdue=args.accept_overdue_calibration, catalog=run_catalog(args.catalog, config))
+                        accept_overdue=args.accept_overdue_calibration, catalog=run_catalog(args.catalog, config),
+                        startup=StartupSignals.current)
     runner, lab, recorder = session.runner, session.lab, session.recorder
     state = {"signals": 0}
 
@@ -392,9 +426,11 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
         elif state["signals"] == 2:
             runner.notices.append(f"[yellow]{name} again: the safe-state sequence is running and will not be skipped[/]")
 
-    # SIGHUP (the terminal closed, the ssh session dropped) takes the same path as Ctrl-C
-    stops = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()))
-    old = {s: signal.signal(s, on_signal) for s in stops}
+    # SIGHUP (the terminal closed, the ssh session dropped) and every other terminating signal take
+    # the same path as Ctrl-C
+    old = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS}
+    if StartupSignals.current is not None and StartupSignals.current.signum is not None:
+        on_signal(StartupSignals.current.signum, None)  # arrived between the run's start-up and these handlers
     pause_signals = [getattr(signal, n) for n in ("SIGUSR1", "SIGTSTP") if hasattr(signal, n)]
     old_pause = {s: signal.signal(s, on_pause) for s in pause_signals}
     try:
@@ -419,16 +455,6 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
 
         print(json.dumps({"run_file": str(recorder.path), "exit_code": code, **result.as_json()}, indent=2))
     return code
-
-
-def _estimate_bytes(procedure) -> int:
-    """Rough run-file size (B) for the free-space check: streamed rows only while a step records
-    (``record``, or ``record:`` on a wait/vibration), as if at 1 kHz with 20 values of 8 B, plus
-    the polled instruments for the whole estimated run (5 instruments at 1 Hz, 10 values of 8 B)."""
-    est = procedure.estimate()
-    recording_s = sum(e.duration_s for step, e in zip(procedure.steps, est.steps)
-                      if step.type == "record" or step.params.get("record"))
-    return int(recording_s * 1000 * 20 * 8 + est.total_s * 5 * 10 * 8) + 1_000_000
 
 
 def _print_summary(console: Console, result, path: Path, virtual: bool) -> None:
@@ -497,6 +523,8 @@ def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
 
     if args.events < 0:
         raise InputError(f"expected a number of events >= 0, got {args.events}", None, "--events")
+    if args.verify:
+        return _inspect_verify(args)
     summary = read_run_summary(args.run_file, traffic=args.traffic)
     if args.json:
         import json
@@ -507,6 +535,21 @@ def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
         return EXIT_OK
     render_summary(summary, console, max_events=args.events, traffic=args.traffic)
     return EXIT_OK
+
+
+def _inspect_verify(args: argparse.Namespace) -> int:
+    """``bench inspect --verify``: exit 0 when every chunk verified, 1 when one is damaged or the
+    file has no checksums, 2 (an InputError) when the file is unreadable."""
+    from bench.record.verify import VERIFIED, render_verification, verification_json, verify_run_file
+
+    check = verify_run_file(args.run_file)
+    if args.json:
+        import json
+
+        print(json.dumps(verification_json(check), indent=2))
+    else:
+        print("\n".join(render_verification(check)))
+    return EXIT_OK if check.status == VERIFIED else EXIT_FAILED
 
 
 # ---- calibrate-bench --------------------------------------------------------------------------
@@ -572,7 +615,8 @@ def cmd_instruments_check(args: argparse.Namespace, console: Console) -> int:
 def cmd_lab_init(args: argparse.Namespace, console: Console) -> int:
     """Write the lab config skeleton (:mod:`bench.lab_init`) to ``-o`` (``-`` for stdout)."""
     from bench import instruments_check, lab_init
-    from bench.cli_common import check_output, output_file
+    from bench.cli_common import check_output
+    from bench.outputs import output_file
 
     to_stdout = str(args.output) == "-"
     if not to_stdout:

@@ -7,28 +7,19 @@ run file or a measured-data CSV) and calls into ``bench/analysis`` or ``bench/re
 from __future__ import annotations
 
 import argparse
-import importlib
 from pathlib import Path
 from typing import Any
 
 from typing import TYPE_CHECKING
 
 from bench import __version__
-from bench.cli_common import add_force, check_output, epilog, output_file
+from bench.analysis.per_file import METHODS
+from bench.cli_common import add_force, check_output, epilog
+from bench.outputs import output_file
 from bench.errors import EXIT_OK, InputError
 
 if TYPE_CHECKING:  # rich, yaml and the analyses are imported where used: `bench --help` stays light
     from rich.console import Console
-
-METHODS: dict[str, tuple[str, str]] = {
-    "thermal": ("bench.analysis.thermal_cal", "calibrate"),
-    "rate-transfer": ("bench.analysis.rate_transfer", "calibrate"),
-    "two-level": ("bench.analysis.two_level", "calibrate"),
-    "gauss-newton": ("bench.analysis.gauss_newton", "calibrate"),
-    "noise": ("bench.analysis.noise_cal", "calibrate"),
-    "moving-average": ("bench.analysis.noise_cal", "calibrate_moving_average"),
-}
-"""``bench calibrate`` method -> (module, function(Dataset, **options) -> CalibrationResult)."""
 
 CALIBRATION_SCHEMA = "bench-calibration/1"
 
@@ -108,20 +99,12 @@ def _add_map_option(p: argparse.ArgumentParser) -> None:
                         "temp, time, ... and its units; repeatable, or a mapping YAML file (docs/analysis.md)")
 
 
-def _load_data(args: argparse.Namespace):
-    """The dataset of ``args.data`` (``--map``: a foreign HDF5/netCDF-4 file); how a mapped file was
-    read (time source, dropped rows) goes to stderr, so ``--json`` output stays clean. A value no
-    measurement has (|v| > 1e9, e.g. 1e300) is refused at its row (:func:`check_magnitudes`)."""
-    from bench.analysis.dataset import check_magnitudes
-    from bench.analysis.foreign import load_data
-
+def _note_on_stderr(note: str) -> None:
+    """How a mapped file was read (time source, dropped rows), on stderr, so ``--json`` output
+    stays clean (the ``on_note`` of :mod:`bench.analysis.per_file`)."""
     from rich.console import Console
 
-    ds, notes = load_data(args.data, args.map)
-    check_magnitudes(ds)
-    for note in notes:
-        Console(stderr=True, highlight=False).print(f"note: {note}", markup=False, soft_wrap=True)
-    return ds
+    Console(stderr=True, highlight=False).print(f"note: {note}", markup=False, soft_wrap=True)
 
 
 def _print_tables(console: Console, tables) -> None:
@@ -136,34 +119,18 @@ def _print_tables(console: Console, tables) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
-    import json
     from datetime import datetime, timezone
 
+    from bench.analysis.per_file import calibrate_file, calibration_options, json_text
     from bench.analysis.progress import Progress
     from bench.replay.recording import file_sha256
 
     check_output(args.output, "-o", force=args.force, inputs=[args.data])
-    module_name, func_name = METHODS[args.method]
-    module = importlib.import_module(module_name)
-    opts: dict[str, Any] = {}
-    if args.degree is not None:
-        if args.method != "thermal":
-            raise InputError("--degree applies to the thermal method only", None, "--degree")
-        opts["degree"] = args.degree
-    if args.sensor is not None:
-        if args.method != "gauss-newton":
-            raise InputError("--sensor applies to the gauss-newton method only", None, "--sensor")
-        opts["sensor"] = args.sensor
+    opts = calibration_options(args.method, degree=args.degree, sensor=args.sensor)
     with Progress(f"calibrate {args.method}") as say:
-        say(f"reading {args.data}")
-        if args.method == "rate-transfer" and args.data.suffix.lower() not in (".h5", ".hdf5") and module.is_summary_csv(args.data):
-            result = module.calibrate_summary_csv(args.data, **opts)
-        else:
-            ds = _load_data(args)
-            say(f"fitting {len(ds):,} rows")
-            result = getattr(module, func_name)(ds, **opts)
+        result = calibrate_file(args.method, args.data, args.map, opts, progress=say, on_note=_note_on_stderr)
     if args.json:
-        print(json.dumps(result.json, indent=2, default=_plain))
+        print(json_text(result.json))
     else:
         _print_tables(console, result.tables)
         for note in result.notes:
@@ -210,9 +177,8 @@ def cmd_report(args: argparse.Namespace, console: Console) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
-    import json
-
-    from bench.analysis.diagnose import diagnose, write_report
+    from bench.analysis.diagnose import write_report
+    from bench.analysis.per_file import diagnose_file, json_text, rows_line
     from bench.analysis.progress import Progress
 
     for path, option in ((args.report, "--report"), (args.output, "-o")):
@@ -221,18 +187,15 @@ def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
         raise InputError("--report and -o name the same file; give two names", None, "-o")
     info = _info_console(args, console)
     with Progress("diagnose") as say:
-        say(f"reading {args.data}")
-        ds = _load_data(args)
-        say(f"{len(ds):,} rows read, preparing")
-        result = diagnose(ds, model_path=str(args.model) if args.model else None, progress=say)
+        result, ds = diagnose_file(args.data, args.map, args.model, progress=say, on_note=_note_on_stderr)
     if args.json:
-        print(json.dumps(result.json, indent=2, default=_plain))
+        print(json_text(result.json))
     else:
         for line in result.summary_lines():
             console.print(line, markup=False, soft_wrap=True)
-    prepared = (getattr(result, "_internal", None) or (None,))[0]
-    if hasattr(prepared, "rows_line"):
-        info.print(prepared.rows_line(), markup=False, soft_wrap=True)
+    analysed = rows_line(result)
+    if analysed is not None:
+        info.print(analysed, markup=False, soft_wrap=True)
     if args.report is not None:
         with Progress("diagnose") as say, output_file(args.report, "--report", force=args.force) as tmp:
             say(f"writing the report {args.report}")
@@ -256,28 +219,7 @@ def _write_yaml(path: Path, doc: Any, force: bool) -> None:
     (:func:`bench.cli_common.output_file`: an existing file is replaced only with ``force``)."""
     import yaml
 
+    from bench.analysis.per_file import plain_tree
+
     with output_file(path, "-o", force=force) as tmp:
-        tmp.write_text(yaml.safe_dump(_plain_tree(doc), sort_keys=False), encoding="utf-8")
-
-
-def _plain(v: Any) -> Any:
-    """numpy scalars and arrays as plain Python for JSON/YAML."""
-    import numpy as np
-
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, Path):
-        return str(v)
-    raise TypeError(f"not serialisable: {type(v).__name__}")
-
-
-def _plain_tree(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _plain_tree(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain_tree(x) for x in v]
-    if isinstance(v, (str, int, float, bool)) or v is None:
-        return v
-    return _plain_tree(_plain(v))
+        tmp.write_text(yaml.safe_dump(plain_tree(doc), sort_keys=False), encoding="utf-8")

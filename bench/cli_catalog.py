@@ -26,11 +26,13 @@ MIN_PROCEDURE_WIDTH = 12
 """The procedure column never gets narrower than this (characters)."""
 PROGRESS_LINE_S = 5.0
 """Seconds of wall time between progress lines of a rebuild when stderr is not a terminal."""
+CATALOG_HELP = "catalogue URL: postgresql://USER@HOST[:PORT]/DB, sqlite:///PATH or a file path"
+"""Help of the --catalog options."""
 
 
 def add_catalog_parsers(sub: Any) -> None:
     """Register ``runs`` and ``catalog`` on the ``bench`` subcommand parsers ``sub``."""
-    catalog_help = "catalogue URL: postgresql://USER@HOST[:PORT]/DB, sqlite:///PATH or a file path"
+    catalog_help = CATALOG_HELP
     r = sub.add_parser(
         "runs", help="list the catalogued runs (unit, procedure, status, verdict, environment), filtered",
         description="One row per run file from the catalogue (default RUNS_DIR/catalog.sqlite). Text filters match "
@@ -39,17 +41,7 @@ def add_catalog_parsers(sub: Any) -> None:
                       "bench runs --unit 12 --json", "bench runs --catalog postgresql://bench@labdb/bench --station tvac-1",
                       ok="the rows were listed (none may match)", failed="the catalogue could not be read (server unreachable, "
                       "locked beyond its timeout, a newer schema)", bad="a bad filter value (--since: ...), no catalogue"))
-    r.add_argument("--unit", metavar="SN", help="serial number of the unit under test")
-    r.add_argument("--part", metavar="PN", help="part number of the unit under test")
-    r.add_argument("--procedure", metavar="NAME", help="procedure name")
-    r.add_argument("--status", metavar="S", help="running | completed | aborted | failed | crashed")
-    r.add_argument("--verdict", metavar="V", help="passed | failed | no-verdict | incomplete")
-    r.add_argument("--station", metavar="NAME", help="test station")
-    r.add_argument("--since", metavar="DATE|DURATION", help="runs started at or after a UTC date/time (2026-11-23, 2026-11-23T08:00Z) or within a duration (7d, 12 h)")
-    r.add_argument("--vacuum-below", metavar="PRESSURE", help="runs whose lowest monitored pressure was at or below this (1e-4 Torr; a bare number is Torr)")
-    r.add_argument("--limit", type=int, metavar="N", default=None, help="only the latest N runs")
-    r.add_argument("--runs-dir", type=Path, default=Path("runs"), metavar="DIR", help="directory of the runs and their catalog.sqlite (default: runs/)")
-    r.add_argument("--catalog", metavar="URL", default=None, help=f"{catalog_help} (default: RUNS_DIR/catalog.sqlite)")
+    add_run_filters(r)
     r.add_argument("--json", action="store_true", help="print a JSON list of rows (every column) instead of a table")
 
     c = sub.add_parser("catalog", help="the catalogue of runs: rebuild it from the run files",
@@ -68,6 +60,22 @@ def add_catalog_parsers(sub: Any) -> None:
     rb.add_argument("--recursive", action="store_true", help="also the run files in DIR's subdirectories")
 
 
+def add_run_filters(r: Any) -> None:
+    """The filters of ``bench runs`` and where its catalogue is, added to the parser (or argument
+    group) ``r``; ``bench fleet --query`` takes the same (:func:`query_runs`)."""
+    r.add_argument("--unit", metavar="SN", help="serial number of the unit under test")
+    r.add_argument("--part", metavar="PN", help="part number of the unit under test")
+    r.add_argument("--procedure", metavar="NAME", help="procedure name")
+    r.add_argument("--status", metavar="S", help="running | completed | aborted | failed | crashed")
+    r.add_argument("--verdict", metavar="V", help="passed | failed | no-verdict | incomplete")
+    r.add_argument("--station", metavar="NAME", help="test station")
+    r.add_argument("--since", metavar="DATE|DURATION", help="runs started at or after a UTC date/time (2026-11-23, 2026-11-23T08:00Z) or within a duration (7d, 12 h)")
+    r.add_argument("--vacuum-below", metavar="PRESSURE", help="runs whose lowest monitored pressure was at or below this (1e-4 Torr; a bare number is Torr)")
+    r.add_argument("--limit", type=int, metavar="N", default=None, help="only the latest N runs")
+    r.add_argument("--runs-dir", type=Path, default=Path("runs"), metavar="DIR", help="directory of the runs and their catalog.sqlite (default: runs/)")
+    r.add_argument("--catalog", metavar="URL", default=None, help=f"{CATALOG_HELP} (default: RUNS_DIR/catalog.sqlite)")
+
+
 def cmd_catalog(args: argparse.Namespace, console: "Console") -> int:
     """``bench runs`` or ``bench catalog ACTION``."""
     if args.command == "runs":
@@ -77,6 +85,16 @@ def cmd_catalog(args: argparse.Namespace, console: "Console") -> int:
 
 # ---- bench runs ---------------------------------------------------------------------------------
 def cmd_runs(args: argparse.Namespace, console: "Console") -> int:
+    rows = query_runs(args)
+    if args.json:
+        print(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in rows], indent=2))
+        return EXIT_OK
+    render_runs(rows, console)
+    return EXIT_OK
+
+
+def query_runs(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The catalogue rows of the filters of :func:`add_run_filters` in ``args``, oldest start first."""
     from bench.catalog import query as q
     from bench.catalog.store import open_catalog, resolve_url
 
@@ -88,12 +106,7 @@ def cmd_runs(args: argparse.Namespace, console: "Console") -> int:
     )
     url = resolve_url(args.catalog, args.runs_dir)
     with open_catalog(url, create=False, field="--catalog" if args.catalog else "--runs-dir") as cat:
-        rows = q.find_runs(cat, f)
-    if args.json:
-        print(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in rows], indent=2))
-        return EXIT_OK
-    render_runs(rows, console)
-    return EXIT_OK
+        return q.find_runs(cat, f)
 
 
 def _json_value(v: Any) -> Any:

@@ -17,11 +17,11 @@ import math
 import os
 import shutil
 import textwrap
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Iterable
 
 from bench.errors import EXIT_BAD_INPUT, InputError
+from bench.outputs import exists_error as _exists
 
 DEBUG_HELP = "show the traceback of an error instead of one line (accepted before or after the command)"
 
@@ -114,45 +114,6 @@ def check_output(path: Path | None, option: str, *, force: bool = False, inputs:
     parent = Path(path).parent
     if not parent.is_dir():
         raise InputError(f"directory {parent} does not exist; create it or write elsewhere", None, option)
-
-
-@contextmanager
-def output_file(path: Path, option: str, *, force: bool = False) -> Iterator[Path]:
-    """Where to write the output ``path``: a hidden sibling, moved to ``path`` when the block ends
-    without an exception (removed otherwise). An existing ``path`` is replaced only with ``force``
-    and only once the new file is complete; without ``force`` a file that appeared meanwhile is not
-    overwritten (:class:`InputError`, ``option`` names the option). The writer may refuse an
-    existing file: the sibling never exists beforehand."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
-    try:
-        yield tmp
-        if os.path.exists(tmp):  # else the writer wrote nothing (e.g. refused)
-            _move_into_place(tmp, path, option, force)
-    finally:
-        if os.path.lexists(tmp):
-            os.unlink(tmp)
-
-
-def _move_into_place(tmp: Path, path: Path, option: str, force: bool) -> None:
-    try:
-        if force:
-            os.replace(tmp, path)
-            return
-        try:
-            os.link(tmp, path)  # fails if path exists: never overwrites
-        except FileExistsError:
-            raise _exists(path, option) from None
-        except OSError:  # a filesystem without hard links
-            if os.path.lexists(path):
-                raise _exists(path, option) from None
-            os.rename(tmp, path)
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc.strerror or exc}", None, option) from None
-
-
-def _exists(path: Path, option: str) -> InputError:
-    return InputError(f"{path} exists; choose another name or delete it (--force overwrites it)", None, option)
 
 
 def _same_file(a: Path, b: Path) -> bool:

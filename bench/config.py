@@ -6,6 +6,8 @@ Validated like procedures: every problem is a located one-line :class:`InputErro
 from __future__ import annotations
 
 import math
+import os
+import re
 from dataclasses import dataclass, field
 from datetime import date
 from pathlib import Path
@@ -29,6 +31,18 @@ DEFAULT_BAUDRATE = {"tvac": 9600}
 """Per-driver default baud rate (bit/s) when the config gives none: Watlow F4 and TPG 261 ship at
 9600 (protocols.md sections 1-2); the others default to 115200."""
 DEFAULT_CAN_CHANNEL = "bench-sim"
+SAFE_STATE_TIMEOUT_S = {"rate_table": 5.0, "stepper_bench": 5.0, "acs_board": 30.0, "thermocouple_reader": 30.0, "tvac": 30.0}
+"""Per-driver default deadline of the safe state on an abort (s of wall time, and of run time in a
+dry-run; config ``safe_state_timeout``; docs/reliability.md). Our choice [U]: the moving axes must
+be confirmed at rest within a few seconds (the rate table's quick stop from 60 deg/s takes 1 s per
+axis; 5 s leaves room for one reconnection of 0.5 + 1 + 2 s) or be reported for the operator's
+emergency stop; the others are retried as long as a link fault during the run is by default
+(``reconnect_timeout``, 30 s): the chamber's safe set point matters, and as every instrument is
+told at once their deadlines delay only the closing of the run file, not the table."""
+DEFAULT_SAFE_STATE_TIMEOUT_S = 30.0
+"""Deadline of the safe state of an instrument whose driver has no default in :data:`SAFE_STATE_TIMEOUT_S` (s)."""
+SAFE_STATE_TIMEOUT_RANGE_S = (0.1, 300.0)
+"""Accepted ``safe_state_timeout`` (s): long enough for one command, short enough to be a deadline."""
 SIM_TRANSPORTS = {"acs_board": ("uart", "can"), "tvac": ("tcp", "rtu")}
 """Simulated link choices (``sim.transport``) per backend, default first: the chamber controller's
 Modbus runs on TCP (127.0.0.1) or RTU (a serial line: ``sim://`` or a pty, docs/tvac.md)."""
@@ -97,6 +111,9 @@ class InstrumentConfig:
     """Date (UTC) its calibration is due (config ``calibration_due: YYYY-MM-DD``), None if not given."""
     calibration_due_location: Location | None = None
     """Where ``calibration_due`` is written in the config (for messages about an overdue calibration)."""
+    safe_state_timeout_s: float = DEFAULT_SAFE_STATE_TIMEOUT_S
+    """Deadline of this instrument's safe state on an abort (s; config ``safe_state_timeout``, default
+    :data:`SAFE_STATE_TIMEOUT_S` of its driver)."""
 
 
 @dataclass
@@ -115,6 +132,11 @@ class LabConfig:
     """Catalogue of runs this station writes to (config ``catalog:``, a URL or file, docs/catalog.md);
     ``""``: ``RUNS_DIR/catalog.sqlite``. Checked by ``bench run`` (``catalog_location`` for messages)."""
     catalog_location: Location | None = None
+    sources: dict[str, str] = field(default_factory=dict)
+    """Texts of the files the config named and :func:`load_config` read (sensor models,
+    calibration files): resolved absolute path -> text (and the same text under the absolute name
+    the config gives when a symbolic link made them differ). ``bench run`` keeps them in the run
+    file (``config_sources`` event), so a replay loads the config with them and nothing from disk."""
 
     def kinds(self) -> dict[str, str]:
         """Instrument name -> driver."""
@@ -141,12 +163,18 @@ def load_config(path: str | Path) -> LabConfig:
     catalog = top.get("catalog", str, default="")
     world = _world(top.node_at("world"), errors)
     instruments: dict[str, InstrumentConfig] = {}
+    sources: dict[str, str] = {}
     inode = top.node_at("instruments")
     if inode is None or not isinstance(inode.value, dict) or not inode.value:
         errors.append(InputError("expected a mapping of instrument names to settings", (inode or src.root).location, "instruments"))
     else:
         for iname, node in inode.value.items():
-            inst = _instrument(iname, node, src.path.parent, errors)
+            if not isinstance(iname, str) or not INSTRUMENT_NAME_RE.fullmatch(iname):
+                errors.append(InputError(f"instrument name {str(iname)[:70]!r}: expected letters, digits, '_' or '-', at most 64 "
+                                         "(it is the first part of signals such as tvac.air_c, and a run file's group name)",
+                                         node.location, "instruments"))
+                continue
+            inst = _instrument(iname, node, src.path.parent, errors, sources)
             if inst is not None:
                 instruments[iname] = inst
     flush = 1.0
@@ -163,7 +191,11 @@ def load_config(path: str | Path) -> LabConfig:
     if errors:
         raise InputErrors(errors)
     return LabConfig(name, src.path, src.text, world, instruments, flush, mode, station, catalog,
-                     top.map["catalog"].location if catalog else None)
+                     top.map["catalog"].location if catalog else None, sources)
+
+
+INSTRUMENT_NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_\-]{0,63}")
+"""An instrument's name in a lab config (a subset of what replay accepts as a recorded name)."""
 
 
 def _identity_text(f: Fields, key: str, errors: list[InputError]) -> str:
@@ -207,7 +239,8 @@ def _world(node: Node | None, errors: list[InputError]) -> WorldParams:
     return p
 
 
-def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> InstrumentConfig | None:
+def _instrument(name: str, node: Node, base: Path, errors: list[InputError], sources: dict[str, str]) -> InstrumentConfig | None:
+    """One instrument's settings; ``sources`` receives path -> text of the files it names."""
     before = len(errors)
     f = Fields(node, f"instrument {name!r}", errors)
     driver = f.get("driver", str, required=True)
@@ -224,7 +257,7 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
             errors.append(InputError("expected a timeout between 0 and 60 s", n.location, "timeout"))
     sim = None
     if (n := f.node_at("sim")) is not None:
-        sim = _sim(name, n, base, errors)
+        sim = _sim(name, n, base, errors, sources)
     cal = _speed_calibration(f.node_at("speed_calibration"), errors)
     gauge_port = f.get("gauge_port", str, default="")
     if driver == "tvac" and not gauge_port:
@@ -252,7 +285,15 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
         reconnect = _quantity(n, "s", "reconnect_timeout", errors, reconnect)
         if not 0 <= reconnect <= 3600:
             errors.append(InputError("expected a reconnect timeout between 0 s (abort at once) and 1 h", n.location, "reconnect_timeout"))
-    compensation = _compensation(driver, f.node_at("calibration"), base, errors)
+    safe_default = SAFE_STATE_TIMEOUT_S.get(driver or "", DEFAULT_SAFE_STATE_TIMEOUT_S)
+    safe_timeout = safe_default
+    if (n := f.node_at("safe_state_timeout")) is not None:
+        safe_timeout = _quantity(n, "s", "safe_state_timeout", errors, safe_default)
+        lo, hi = SAFE_STATE_TIMEOUT_RANGE_S
+        if not lo <= safe_timeout <= hi:
+            errors.append(InputError(f"expected a safe-state deadline between {lo:g} s and {hi:g} s "
+                                     f"(the {driver} default: {safe_default:g} s)", n.location, "safe_state_timeout"))
+    compensation = _compensation(driver, f.node_at("calibration"), base, errors, sources)
     serial = _identity_text(f, "serial", errors)
     firmware = _identity_text(f, "firmware", errors)
     due: date | None = None
@@ -267,12 +308,13 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError]) -> 
         return None
     return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
                             channels, tc_type, poll, limits, reconnect, compensation, serial=serial, firmware=firmware,
-                            calibration_due=due, calibration_due_location=due_node.location if due_node is not None else None)
+                            calibration_due=due, calibration_due_location=due_node.location if due_node is not None else None,
+                            safe_state_timeout_s=safe_timeout)
 
 
-def _compensation(driver: str | None, node: Node | None, base: Path, errors: list[InputError]) -> Any:
+def _compensation(driver: str | None, node: Node | None, base: Path, errors: list[InputError], sources: dict[str, str]) -> Any:
     """``calibration: FILE`` or ``[FILE, ...]`` (acs_board): gyro compensation terms, paths relative
-    to the config's directory (bench/model/compensation.py)."""
+    to the config's directory (bench/model/compensation.py); their texts into ``sources``."""
     if node is None:
         return None
     if driver != "acs_board":
@@ -288,12 +330,16 @@ def _compensation(driver: str | None, node: Node | None, base: Path, errors: lis
     if None in paths:
         return None
     try:
-        return load_compensation(paths)
+        comp = load_compensation(paths, sources)
     except InputErrors as exc:
         errors.extend(exc.errors)
+        return None
     except InputError as exc:
         errors.append(exc if exc.location is not None else InputError(exc.message, node.location, "calibration"))
-    return None
+        return None
+    for n, p in zip(items, paths):
+        _keep_as_named(sources, n.value, base, p)
+    return comp
 
 
 def _check_safe_set_point(safe_c: float, limits: dict[str, tuple], node: Node, errors: list[InputError]) -> None:
@@ -356,13 +402,16 @@ def _periodic_error(node: Node, key: str, default_harmonic: int | None, errors: 
         return None
 
 
-def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConfig | None:
+def _sim(name: str, node: Node, base: Path, errors: list[InputError], sources: dict[str, str]) -> SimConfig | None:
     f = Fields(node, f"instrument {name!r} sim", errors)
     backend = f.get("backend", str, required=True)
     if backend is not None and backend not in SIM_BACKENDS:
         errors.append(InputError(f"unknown simulator backend {backend!r} (available: {', '.join(SIM_BACKENDS)})", f.map["backend"].location, "backend"))
     sim = SimConfig(backend or "")
     sim.seed = f.get("seed", int, default=0)
+    if sim.seed is not None and not 0 <= sim.seed < 2**32:
+        errors.append(InputError("expected a seed 0..4294967295 (the simulators' random generators take an unsigned 32-bit seed)",
+                                 f.map["seed"].location, "seed"))
     sim.serial = f.get("serial", str, default=sim.serial)
     sim.bit_fail_mask = f.get("bit_fail_mask", int, default=0)
     opened = f.get("open_channels", list, default=[])
@@ -395,7 +444,8 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError]) -> SimConf
         if model_rel is not None else None
     if model_path is not None:
         sim.model_path = str(model_path)
-        model = _sensor_model(model_path, f.map["sensor_model"].location, errors)
+        model = _sensor_model(model_path, f.map["sensor_model"].location, errors, sources)
+        _keep_as_named(sources, model_rel, base, model_path)
         if isinstance(model, ImuModelParams):
             sim.model = model
         else:
@@ -415,12 +465,23 @@ def _named_file(name: str, base: Path, what: str, ref: Location, key: str, error
         return None
 
 
-def _other_sensor_model(path: Path, ref: Location, errors: list[InputError]) -> Any:
-    """A model file other than ``imu_simple`` (bench/model/loader.py validates it); None if bad."""
-    from bench.model.loader import load_sensor_model
+def _keep_as_named(sources: dict[str, str], name: str, base: Path, path: Path) -> None:
+    """Keep the text read from ``path`` (resolved) also under the name the config gives, made
+    absolute from the config's resolved directory without following links, when a symbolic link
+    makes the two differ (``current.yaml -> board_v3.yaml``): a replay, which holds no links, looks
+    the name up there."""
+    named = os.path.normpath(Path(base).resolve() / name)
+    if named != str(path) and str(path) in sources:
+        sources[named] = sources[str(path)]
+
+
+def _other_sensor_model(path: Path, text: str, ref: Location, errors: list[InputError]) -> Any:
+    """A model file other than ``imu_simple`` (bench/model/loader.py validates ``text``, read from
+    ``path``); None if bad."""
+    from bench.model.loader import parse_sensor_model
 
     try:
-        spec = load_sensor_model(path)
+        spec = parse_sensor_model(text, str(path))
     except InputErrors as exc:
         errors.extend(exc.errors)
         return None
@@ -433,15 +494,17 @@ def _other_sensor_model(path: Path, ref: Location, errors: list[InputError]) -> 
     return spec
 
 
-def _sensor_model(path: Path, ref: Location, errors: list[InputError]) -> Any:
+def _sensor_model(path: Path, ref: Location, errors: list[InputError], sources: dict[str, str]) -> Any:
+    """The sensor model file at ``path`` (read once; its text into ``sources``)."""
     try:
         src = load_yaml(path, "sensor model")
     except InputError as exc:
         errors.append(InputError(f"sensor model {path}: {exc.message}", exc.location if exc.location and exc.location.line else ref, "sensor_model"))
         return ImuModelParams()
+    sources[str(path)] = src.text  # kept in the run file: a replay reads it from there
     data: dict[str, Any] = src.root.plain()
     if isinstance(data, dict) and data.get("model") not in (None, "imu_simple"):
-        return _other_sensor_model(path, ref, errors)
+        return _other_sensor_model(path, src.text, ref, errors)
     if data.pop("schema", None) != SENSOR_MODEL_SCHEMA:
         errors.append(InputError(f"expected schema: {SENSOR_MODEL_SCHEMA}", src.root.location, "schema"))
     if data.pop("model", None) != "imu_simple":

@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,8 @@ class CsvTable:
     rows: list[list[str]]
     lines: list[int]
     meta: dict[str, str]
+    meta_lines: dict[str, int] = field(default_factory=dict)
+    """1-based file line of each metadata key, for located messages."""
 
 
 def read_csv_table(path: str | Path) -> CsvTable:
@@ -46,6 +48,7 @@ def read_csv_table(path: str | Path) -> CsvTable:
     # lines end at \n, \r\n or \r only (str.splitlines would also split at form feeds and other
     # characters inside a cell, and the line numbers would no longer be those an editor shows)
     meta: dict[str, str] = {}
+    meta_lines: dict[str, int] = {}
     numbered: list[tuple[int, str]] = []
     for i, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n")):
         stripped = line.strip()
@@ -55,6 +58,7 @@ def read_csv_table(path: str | Path) -> CsvTable:
             m = _META.match(stripped)
             if m and not numbered:
                 meta[m.group(1)] = m.group(2)
+                meta_lines[m.group(1)] = i + 1
             continue
         numbered.append((i + 1, line))
     if not numbered:
@@ -71,7 +75,7 @@ def read_csv_table(path: str | Path) -> CsvTable:
             start = reader.line_num
     except csv.Error as exc:  # an unterminated quote, a field beyond the csv module's size limit
         raise InputError(f"not valid CSV: {exc}", Location(p, numbered[min(start, len(numbered) - 1)][0])) from None
-    return CsvTable(p, [h.strip() for h in rows[0]], lines[0], rows[1:], lines[1:], meta)
+    return CsvTable(p, [h.strip() for h in rows[0]], lines[0], rows[1:], lines[1:], meta, meta_lines)
 
 
 def numeric_columns(table: CsvTable, columns: list[str]) -> dict[str, np.ndarray]:

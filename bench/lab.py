@@ -1,14 +1,16 @@
 """The lab a run talks to: a clock and one driver per instrument, on hardware or simulators.
 
 ``--sim`` puts the simulators named in the config behind the very same drivers: serial ones
-through the ``sim://NAME`` pyserial URL handler, the chamber controller through a real Modbus TCP
-server on 127.0.0.1 (or on Modbus RTU over ``sim://NAME`` with ``sim.transport: rtu``), CAN drives
-on a python-can virtual bus. The driver code path is identical to
-a hardware run.
+through the ``sim://NAME`` pyserial URL handler; the chamber controller's Modbus TCP ADUs (or RTU
+frames with ``sim.transport: rtu``) on an in-process stream and the CAN drives on a synchronous
+in-process bus, answered in the caller's thread — or, with ``BENCH_DRYRUN_TRANSPORT=socket``, through
+a real Modbus TCP server on 127.0.0.1 and a python-can virtual bus (:data:`bench.sim.factory.TRANSPORTS`;
+the same bytes either way). The driver code above the transport is identical to a hardware run.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -16,7 +18,7 @@ from bench.clock import Clock, VirtualClock, WallClock
 from bench.config import InstrumentConfig, LabConfig
 from bench.errors import InputError
 from bench.sim import registry
-from bench.sim.factory import SimInstrument, build_devices, serial_url
+from bench.sim.factory import TRANSPORTS, SimInstrument, build_devices, serial_url
 from bench.sim.world import World
 from drivers.acs_board import AcsBoard
 from drivers.rate_table import RateTable
@@ -32,6 +34,19 @@ DRIVER_CLASSES: dict[str, Any] = {
     "rate_table": RateTable,
 }
 """Config ``driver`` name -> driver class (each has ``open(url, baudrate=, timeout_s=, on_traffic=, ...)``)."""
+
+DRYRUN_TRANSPORT_ENV = "BENCH_DRYRUN_TRANSPORT"
+"""Environment variable choosing how a dry-run reaches its simulators: ``inprocess`` (default) or ``socket``."""
+
+
+def dryrun_transport() -> str:
+    """The dry-run transport named by :data:`DRYRUN_TRANSPORT_ENV` (default ``inprocess``);
+    :class:`InputError` naming the variable for another value."""
+    value = os.environ.get(DRYRUN_TRANSPORT_ENV, "").strip() or "inprocess"
+    if value not in TRANSPORTS:
+        raise InputError(f"{DRYRUN_TRANSPORT_ENV}={value!r} is not one of {', '.join(TRANSPORTS)}")
+    return value
+
 
 TrafficSink = Callable[[str, str, str, bytes], None]
 """Called with (instrument, "command" | "reply", what (frame or command name), raw bytes)."""
@@ -56,6 +71,8 @@ class Lab:
     """Instrument name -> driver kind (``tvac``, ``rate_table``, ...), from the config."""
     config_limits: dict[str, dict[str, tuple]] = field(default_factory=dict)
     """This lab's hardware limits per instrument (config ``limits:``; see bench.procedure.limits)."""
+    safe_state_timeouts: dict[str, float] = field(default_factory=dict)
+    """Deadline of each instrument's safe state on an abort (s), from the config (``safe_state_timeout``)."""
 
     def reopen(self, name: str) -> Any:
         """Close instrument ``name``'s driver (errors ignored) and open it again; returns the new
@@ -108,7 +125,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
     world = World(config.world) if sim else None
     if sim:
         try:
-            sims = build_devices(config, clock, names, world=world)
+            sims = build_devices(config, clock, names, world=world, transport=dryrun_transport())
         except ValueError as exc:
             raise InputError(str(exc)) from None
     ports: dict[str, str] = {}
@@ -130,6 +147,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
               {name: config.instruments[name].reconnect_timeout_s for name in names})
     lab.kinds = {name: config.instruments[name].driver for name in names}
     lab.config_limits = config.limits()
+    lab.safe_state_timeouts = {name: config.instruments[name].safe_state_timeout_s for name in names}
     try:
         for name in names:
             inst = config.instruments[name]

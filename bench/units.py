@@ -21,6 +21,17 @@ from bench.errors import InputError, Location
 
 _DEG_ABSOLUTE = re.compile(r"(?<![A-Za-z_])(deg[CF]|degree_(?:Celsius|Fahrenheit)|celsius|fahrenheit)\b")
 
+_NAME = r"[A-Za-z_\u00b0\u00b5\u03bc\u03a9%][A-Za-z0-9_\u00b0\u00b5\u03bc\u03a9%]*+(?:\s*+(?:\*\*|\^)\s*+[+-]?\d++(?:\.\d++)?)?+"
+_OP = r"(?:\s*+[*/]\s*+|\s++)"
+_TERM = rf"(?:{_NAME}|\(\s*+{_NAME}(?:{_OP}{_NAME})*+\s*+\))"
+_QUANTITY_TEXT = re.compile(
+    r"\s*+[+-]?(?:\d++\.?\d*+|\.\d++)(?:[eE][+-]?\d++)?+"  # one number, first
+    rf"(?:\s*+/?\s*+{_TERM}(?:{_OP}{_TERM})*+)?+\s*+"  # then unit names joined by * and /, each with an exponent
+)
+"""A quantity as text: one number, then unit names joined by ``*``, ``/`` and exponents
+(``-29 degC``, ``1e-5 Torr``, ``0.04 g^2/Hz``, ``20 deg/s**2``). Anything else (``66 degC * 0``,
+``10 min + 5 s``) would be evaluated by pint as an expression: it is refused, not computed."""
+
 TEMPERATURE_DIFFERENCE = "delta_degC"
 """Units of temperature differences (bands) and, as ``delta_degC/min``, of temperature rates."""
 
@@ -66,6 +77,9 @@ def to_units(value: Any, units: str, location: Location | None = None, field: st
         return float(value)
     if not isinstance(value, str):
         raise InputError(f"expected a quantity in {units} such as '10 {units}', got {value!r}", location, field)
+    if len(value) > 200 or not _QUANTITY_TEXT.fullmatch(value):
+        raise InputError(f"cannot read quantity {value[:60]!r}: expected a number then its units, such as '10 {units}' "
+                         "(expressions are not evaluated)", location, field)
     if "delta_deg" in units:
         # a temperature difference or rate ("0.5 degC", "0.5 degC/min"): degC means a difference
         # here, not 0.5 °C = 273.65 K

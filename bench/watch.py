@@ -35,6 +35,7 @@ from bench.errors import EXIT_OK, InputError
 from bench.record import layout
 from bench.record.reader import (
     STALE_AFTER_S,
+    first_row_at_or_after,
     EventRow,
     PendingPrompt,
     TrafficSummary,
@@ -88,7 +89,7 @@ _STEP_START = layout.EVENT_STEP_START.encode("ascii")
 _STEP_END = layout.EVENT_STEP_END.encode("ascii")
 _PROMPT = layout.EVENT_PROMPT.encode("ascii")
 _COMMAND = b"command"
-_WAIT_REASONS = ("recording had not started", "locked by the process writing it", "the file is empty")
+_WAIT_REASONS = ("open for writing outside SWMR mode", "locked by the process writing it", "the file is empty")
 
 
 # ---- state --------------------------------------------------------------------------------------
@@ -434,17 +435,6 @@ def _events_at(events: h5py.Dataset, blob: h5py.Dataset, blob_len: int, rows: li
     return [event_row(r, m, d) for r, m, d in zip(block, msgs, raw)]
 
 
-def _search_time(ds: h5py.Dataset, t: float, lo: int, hi: int) -> int:
-    """First row in ``lo..hi`` whose time is >= ``t`` (times ascending), with O(log n) point reads."""
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if float(ds[mid]) < t:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
 def _read_stream_tail(key: str, g: h5py.Group, limit: int, window_s: float, points: int) -> StreamState:
     names = _column_order(g)
     cols = [n for n in names if n != layout.TIME]
@@ -460,8 +450,8 @@ def _read_stream_tail(key: str, g: h5py.Group, limit: int, window_s: float, poin
     if n == 0:
         return StreamState(key, 0, None, None, 0.0, units, {}, [])
     t_last = float(tds[n - 1])
-    i0 = _search_time(tds, t_last - window_s, 0, n - 1) if math.isfinite(t_last) else n - 1
-    ir = _search_time(tds, t_last - RATE_WINDOW_S, i0, n - 1) if math.isfinite(t_last) else n - 1
+    i0 = first_row_at_or_after(tds, t_last - window_s, 0, n - 1) if math.isfinite(t_last) else n - 1
+    ir = first_row_at_or_after(tds, t_last - RATE_WINDOW_S, i0, n - 1) if math.isfinite(t_last) else n - 1
     t_ir = float(tds[ir])
     rate = (n - 1 - ir) / (t_last - t_ir) if n - 1 > ir and t_last > t_ir else None
     step = max(1, math.ceil((n - i0) / MAX_TREND_ROWS))

@@ -33,7 +33,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from drivers.base import Driver, Transient, check_timeout
 from drivers.clock import WallClock
 from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
-from drivers.can_transport import open_bus, parse_can_url
+from drivers.can_transport import connect_network, open_bus, parse_can_url
 
 EDS_PATH = Path(__file__).with_name("rate_table.eds")
 READ_RETRIES = 1  # reads are idempotent: one retry, both attempts within timeout_s
@@ -219,12 +219,15 @@ class RateTable(Driver):
         self.network.listeners.append(self._errors)
         self.axes: dict[str, _Axis] = {}
         self._pdo_ok = True
+        self._pdo_got: dict[int, bytes] | None = None
+        self._pdo_done = threading.Event()
         for name, nid in (("rotation", node_id), ("tilt", node_id + 1)):
             node = self.network.add_node(nid, str(EDS_PATH))
             node.sdo.MAX_RETRIES = 1  # canopen: 1 = a single attempt; this driver retries reads itself
             self._hook_traffic(node)
             self.axes[name] = _Axis(name, node)
-        self.network.connect()
+        self._layout_tpdos()
+        connect_network(self.network)  # a notifier thread, or none on a synchronous in-process bus
         try:
             for ax in self.axes.values():
                 ax.units = AxisUnits(self._read(ax, Obj.ENCODER_INCREMENTS) // max(self._read(ax, Obj.ENCODER_REVOLUTIONS), 1))
@@ -352,45 +355,58 @@ class RateTable(Driver):
         angle_deg, rate_dps. None when a PDO does not come within the timeout (``timeout_s``, wall s)
         or has another length than :data:`TPDO_MAP` gives."""
         with self._lock:
-            want = {ax.node.id + base: ax for ax in self.axes.values() for base, _ in TPDO_MAP.values()}
+            want = self._tpdo_cobs
             got: dict[int, bytes] = {}
-            done = threading.Event()
-
-            def on_pdo(can_id: int, data: bytearray, timestamp: float) -> None:
-                got[can_id] = bytes(data)
-                if len(got) == len(want):
-                    done.set()
-
-            for cob in want:
-                self.network.subscribe(cob, on_pdo)
+            self._pdo_done.clear()
+            self._pdo_got = got  # filled by _on_pdo (the notifier thread, or this one on a synchronous bus)
             try:
                 self._emit("command", "SYNC", SYNC_COB_ID, b"")
                 self.network.send_message(SYNC_COB_ID, b"")
-                done.wait(self.timeout_s)
+                if len(got) < len(want):
+                    self._pdo_done.wait(self.timeout_s)
             except can.CanError as exc:
                 raise InstrumentError(f"rate_table: SYNC failed: {exc}") from None
             finally:
-                for cob in want:
-                    self.network.unsubscribe(cob, on_pdo)
+                self._pdo_got = None
             if len(got) < len(want):
                 return None
             out: dict[str, dict[str, float]] = {}
-            for ax in self.axes.values():
+            for ax, pdos in self._tpdo_layout:
                 values = {}
-                for base, keys in TPDO_MAP.values():
-                    data = got[ax.node.id + base]
-                    self._emit("reply", f"TPDO 0x{ax.node.id + base:03X}", ax.node.id + base, data)
-                    vars_ = [od_var(ax.node.object_dictionary, key) for key in keys]
-                    sizes = [len(var.encode_raw(0)) for var in vars_]
-                    if len(data) != sum(sizes):
+                for cob, name, fields, length in pdos:
+                    data = got[cob]
+                    self._emit("reply", name, cob, data)
+                    if len(data) != length:
                         return None  # a drive with another mapping: the caller falls back to SDO
                     off = 0
-                    for key, var, size in zip(keys, vars_, sizes):
+                    for key, var, size in fields:
                         values[key] = var.decode_raw(data[off:off + size])
                         off += size
                 out[ax.name] = {"statusword": values[Obj.STATUSWORD], "angle_deg": ax.units.deg(values[Obj.POSITION_ACTUAL]),
                                 "rate_dps": ax.units.deg(values[Obj.VELOCITY_ACTUAL])}
             return out
+
+    def _on_pdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        got = self._pdo_got
+        if got is None:
+            return  # not waiting for PDOs: nobody asked for these
+        got[can_id] = bytes(data)
+        if len(got) >= len(self._tpdo_cobs):
+            self._pdo_done.set()
+
+    def _layout_tpdos(self) -> None:
+        """Per axis, its transmit PDOs (:data:`TPDO_MAP`): (COB-ID, traffic name, (object, OD variable,
+        bytes) of each mapped object, length in bytes); the PDO handler subscribed once for all."""
+        self._tpdo_layout = []
+        for ax in self.axes.values():
+            pdos = []
+            for base, keys in TPDO_MAP.values():
+                fields = [(key, var, len(var.encode_raw(0))) for key in keys for var in [od_var(ax.node.object_dictionary, key)]]
+                pdos.append((ax.node.id + base, f"TPDO 0x{ax.node.id + base:03X}", fields, sum(f[2] for f in fields)))
+            self._tpdo_layout.append((ax, pdos))
+        self._tpdo_cobs = [cob for _, pdos in self._tpdo_layout for cob, *_ in pdos]
+        for cob in self._tpdo_cobs:
+            self.network.subscribe(cob, self._on_pdo)
 
     def read(self) -> dict:
         """Angles (deg), rates (deg/s), CiA 402 states and decoded statusword bits of both axes.

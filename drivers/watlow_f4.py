@@ -7,7 +7,9 @@ Rows marked ``verified=False`` are our own choice [U] (see ``docs/tvac.md``).
 
 Transports: Modbus TCP (the simulator, or a serial-to-Ethernet gateway) and Modbus RTU on a
 serial line at 9600 baud 8N1, device address 1 (protocols.md section 1: 9600 [V], 8 data bits
-no parity [V], 1 stop bit [U]).
+no parity [V], 1 stop bit [U]); either framing also on any byte stream pyserial opens
+(``modbus-tcp+stream://URL``, ``modbus-rtu+stream://URL``: :mod:`drivers.modbus_stream`, the
+same bytes without the socket and serial clients' waits).
 
 Error reactions: no answer -> :class:`InstrumentTimeout`; a Modbus exception response ->
 :class:`ProtocolError` naming register and exception; connection refused or lost ->
@@ -30,6 +32,7 @@ from pymodbus.framer import FramerType
 
 from drivers.base import Driver, Transient, check_timeout
 from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
+from drivers.modbus_stream import ModbusStreamClient
 
 UNIT_ID = 1  # F4 factory device address 1 (protocols.md section 1 [V])
 DEFAULT_TCP_PORT = 502  # Modbus/TCP registered port (Modbus Messaging on TCP/IP guide)
@@ -135,7 +138,9 @@ def exception_text(code: int) -> str:
 
 def parse_modbus_url(url: str) -> tuple[str, str, int, int]:
     """Split ``modbus-tcp://HOST[:PORT][?unit=N]`` or ``modbus-rtu://PORTNAME[?unit=N]``
-    (``modbus-rtu:///dev/ttyUSB0``, ``modbus-rtu://COM3``) into (kind, host_or_port, tcp_port, unit).
+    (``modbus-rtu:///dev/ttyUSB0``, ``modbus-rtu://COM3``) into (kind, host_or_port, tcp_port, unit);
+    ``modbus-tcp+stream://URL`` and ``modbus-rtu+stream://URL`` (kinds ``tcp-stream``,
+    ``rtu-stream``) give the pyserial URL of the stream (``sim://tvac``, ``socket://HOST:PORT``).
 
     Raises ``ValueError`` on another scheme.
     """
@@ -146,12 +151,14 @@ def parse_modbus_url(url: str) -> tuple[str, str, int, int]:
         if not parts.hostname:
             raise ValueError(f"modbus-tcp URL needs a host: {url!r}")
         return "tcp", parts.hostname, parts.port or DEFAULT_TCP_PORT, unit
-    if parts.scheme == "modbus-rtu":
+    if parts.scheme in ("modbus-rtu", "modbus-tcp+stream", "modbus-rtu+stream"):
         port = parts.netloc + parts.path
         if not port:
-            raise ValueError(f"modbus-rtu URL needs a serial port: {url!r}")
-        return "rtu", port, 0, unit
-    raise ValueError(f"expected modbus-tcp://HOST:PORT or modbus-rtu://PORT, got {url!r}")
+            raise ValueError(f"{parts.scheme} URL needs a serial port or stream URL: {url!r}")
+        kind = {"modbus-rtu": "rtu", "modbus-tcp+stream": "tcp-stream", "modbus-rtu+stream": "rtu-stream"}[parts.scheme]
+        return kind, port, 0, unit
+    raise ValueError(f"expected modbus-tcp://HOST:PORT, modbus-rtu://PORT or modbus-tcp+stream:// / modbus-rtu+stream://URL, "
+                     f"got {url!r}")
 
 
 class WatlowF4(Driver):
@@ -180,6 +187,9 @@ class WatlowF4(Driver):
         kind, where, port, unit = parse_modbus_url(url)
         if kind == "tcp":
             client = ModbusTcpClient(where, port=port, timeout=timeout_s, retries=0, reconnect_delay=0)
+        elif kind in ("tcp-stream", "rtu-stream"):
+            client = ModbusStreamClient(where, framer=FramerType.SOCKET if kind == "tcp-stream" else FramerType.RTU,
+                                        baudrate=baudrate, timeout=timeout_s)
         else:  # 9600 8N1 (protocols.md section 1)
             client = ModbusSerialClient(where, framer=FramerType.RTU, baudrate=baudrate, bytesize=8, parity="N",
                                         stopbits=1, timeout=timeout_s, retries=0, reconnect_delay=0)

@@ -49,6 +49,17 @@ def run_cli(*args: str, cwd: Path = ROOT, timeout: float = 120, **kwargs) -> sub
     )
 
 
+def dry_run_file(directory: Path, name: str, text: str) -> Path:
+    """Write procedure ``text`` as ``directory/NAME.yaml``, dry-run it on the simulated lab
+    (``configs/sim.yaml``) into ``directory/runs`` and return the run file (the run must pass)."""
+    proc = directory / f"{name}.yaml"
+    proc.write_text(text, encoding="utf-8")
+    r = run_cli("run", str(proc), "--config", str(SIM_CONFIG), "--sim", "--runs-dir", str(directory / "runs"))
+    assert r.returncode == 0, r.stdout + r.stderr
+    (path,) = sorted((directory / "runs").glob("*.h5"))
+    return path
+
+
 def write_procedure(path: Path, steps: str, instruments: str = "[acs_board]") -> Path:
     path.write_text(f"schema: bench-procedure/1\nname: {path.stem}\ninstruments: {instruments}\nsteps:\n{steps}")
     return path

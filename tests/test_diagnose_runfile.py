@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import SIM_CONFIG, run_cli
+from tests.conftest import dry_run_file, run_cli
 
 # A 25-minute chamber ramp with the board streaming at 100 Hz: 150,000 rows, more than
 # BIN_MIN_ROWS, so diagnose analyses bin means. About 3 s of wall time in virtual time.
@@ -32,13 +32,7 @@ steps:
 
 @pytest.fixture(scope="module")
 def ramp_run(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("ramp")
-    proc = d / "diagnose_ramp_short.yaml"
-    proc.write_text(RAMP, encoding="utf-8")
-    r = run_cli("run", str(proc), "--config", str(SIM_CONFIG), "--sim", "--runs-dir", str(d / "runs"))
-    assert r.returncode == 0, r.stdout + r.stderr
-    (path,) = sorted((d / "runs").glob("*.h5"))
-    return path
+    return dry_run_file(tmp_path_factory.mktemp("ramp"), "diagnose_ramp_short", RAMP)
 
 
 def test_diagnose_recorded_run_json_report_and_model(ramp_run, tmp_path):

@@ -11,6 +11,11 @@
    (HDF5 may hang or crash on a damaged file: a hang or a crash fails the test, it does not take
    pytest down), zero-length, foreign and future-format files.
 5. The CLI end to end: exit code 2, no traceback.
+6. Crafted and damaged run files (issue 21): a small real run file cut at every HDF5 structure of
+   its first 64 KiB (every byte: marked slow) and read as the replay reads it, the CLI on cuts
+   (replay, inspect, report, diagnose, calibrate, catalog rebuild) with a time limit; FIFOs and
+   devices named as run files; crafted paths and names replayed under an audit hook (nothing read
+   or written outside the replay's directories); a recorded value changed in the file diverges.
 
 ``docs/reliability.md`` ("Bad input") lists what is fuzzed and the bugs these tests found.
 """
@@ -19,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import select
 import shutil
@@ -700,8 +706,10 @@ def csv_datasets(draw, quoted: bool = True):
     t = np.cumsum(draw(st.lists(st.floats(1e-6, 1e6), min_size=n, max_size=n))) + draw(st.floats(-1e6, 1e6))
     assume(np.all(np.diff(t) > 0))
     values = {c: [float(x) for x in t] if c == "time_s" else draw(st.lists(_FINITE, min_size=n, max_size=n)) for c in cols}
-    meta = draw(st.dictionaries(st.sampled_from(["sample_rate_hz", "latitude_deg", "unit", "serial"]),
-                                st.one_of(_FINITE.map(repr), st.sampled_from(["ESTCube-2", "x y", "nan"])), max_size=3))
+    text_or_number = st.one_of(_FINITE.map(repr), st.sampled_from(["ESTCube-2", "x y", "nan"]))
+    meta = draw(st.fixed_dictionaries({}, optional={  # the numbers the analyses use within their ranges (dataset.META_RANGES)
+        "sample_rate_hz": st.floats(1e-3, 1e7).map(repr), "latitude_deg": st.floats(-90, 90).map(repr),
+        "unit": text_or_number, "serial": text_or_number}))
     lines = [f"# {k}: {v}" for k, v in meta.items()]
     lines.append(",".join(f" {h} " if draw(st.booleans()) else h for h in header))
     numbers: list[int] = []
@@ -1083,3 +1091,397 @@ def test_cli_exits_2_without_traceback_on_fuzzed_inputs(tmp_path):
         assert proc.returncode == 2, (path.name, proc.returncode, out[-500:], err[-2000:])
         assert "Traceback" not in err and "internal error" not in err, (path.name, err[-2000:])
         assert err.startswith(str(path)), (path.name, err[-500:])
+
+
+# =================================================================================================
+# 6. crafted and damaged run files: replay and every reader (issue 21; docs/reliability.md,
+#    "Crafted and damaged run files")
+# =================================================================================================
+SHORT_PROCEDURE = """schema: bench-procedure/1
+name: fuzz_short
+instruments: [acs_board, tvac]
+steps:
+  - power: {instrument: acs_board, on: true, name: sensors on}
+  - record: {instrument: acs_board, duration: 2 s, window: still, name: still}
+  - power: {instrument: acs_board, on: false, name: sensors off}
+"""
+
+
+@pytest.fixture(scope="session")
+def short_run(tmp_path_factory) -> Path:
+    """A small real run file, made once: a dry-run of a 2 s board recording with the chamber polled
+    (a board stream and a monitor stream, the procedure and config texts, the traffic)."""
+    from tests.conftest import SIM_CONFIG, run_cli
+
+    d = tmp_path_factory.mktemp("short_run")
+    proc = d / "fuzz_short.yaml"
+    proc.write_text(SHORT_PROCEDURE)
+    r = run_cli("run", str(proc), "--config", str(SIM_CONFIG), "--sim", "--runs-dir", str(d / "runs"), timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    (path,) = (d / "runs").glob("*.h5")
+    return path
+
+
+_HDF5_SIGNATURES = (b"OHDR", b"OCHK", b"GCOL", b"TREE", b"HEAP", b"SNOD", b"BTHD", b"BTLF", b"BTIN", b"FRHP", b"FHDB", b"FHIB",
+                    b"FSHD", b"FSSE", b"EAHD", b"EAIB", b"EADB", b"FAHD", b"FADB")
+SWEEP_BYTES = 64 * 1024
+REPORTED_CUTS = (1136, 11365)
+"""Truncation points at which ``bench replay`` hung for more than 200 s (issue 21)."""
+
+
+def structural_cuts(data: bytes, limit: int = SWEEP_BYTES) -> list[int]:
+    """Offsets that cut the file inside its HDF5 structures: at and just after the start of every
+    metadata block (object headers, B-trees, heaps, global heaps, free-space and array blocks) of
+    its first ``limit`` bytes, inside the superblock, and the points reported in issue 21."""
+    cuts = {8, 9, 24, 48, 96, *REPORTED_CUTS}
+    for sig in _HDF5_SIGNATURES:
+        at = data.find(sig)
+        while 0 <= at < limit:
+            cuts.update(at + d for d in (0, 1, 4, 9, 17, 40))
+            at = data.find(sig, at + 1)
+    return sorted(c for c in cuts if 0 <= c < min(limit, len(data)))
+
+
+_SWEEP = r"""
+import json, os, sys, time
+from pathlib import Path
+from bench.errors import InputError
+from bench.record.reader import read_stream
+from bench.replay.recording import load_recording
+
+src, cut, offsets = Path(sys.argv[1]), Path(sys.argv[2]), json.loads(sys.stdin.read())
+data = src.read_bytes()
+cut.write_bytes(data[:max(offsets)])
+worst, bad = [0.0, -1], []
+
+def attempt(n, what, fn):
+    try:
+        fn()
+    except InputError as exc:
+        msg = str(exc)
+        if not msg.startswith(str(cut)) or "\n" in msg:
+            bad.append([n, what, "InputError not located on one line: " + msg[:500]])
+        return None
+    except BaseException as exc:  # noqa: BLE001
+        bad.append([n, what, f"{type(exc).__name__}: {exc}"[:500]])
+        return None
+    return True
+
+for n in sorted(offsets, reverse=True):  # the file is cut shorter and shorter
+    print(n, flush=True)  # the last offset printed is the one that hung, if one does
+    os.truncate(cut, n)
+    t0 = time.monotonic()
+    box = {}
+    if attempt(n, "replay", lambda: box.setdefault("rec", load_recording(cut))):
+        for s in box["rec"].summary.streams:
+            attempt(n, "stream " + s.key, lambda: read_stream(cut, s.key))
+    dt = time.monotonic() - t0
+    if dt > worst[0]:
+        worst = [dt, n]
+print(json.dumps({"worst": worst, "bad": bad}), flush=True)
+"""
+
+
+def _sweep(tmp_path: Path, run_file: Path, offsets: list[int], timeout_s: float) -> dict:
+    """Cut ``run_file`` at every offset (longest first) in one worker process and open each cut
+    with the replay's reader (version check, summary, the 'procedure' event) and every stream;
+    what went wrong and the slowest offset. A hang fails with the offset it hung at."""
+    proc = subprocess.Popen([sys.executable, "-c", _SWEEP, str(run_file), str(tmp_path / "cut.h5")],
+                            cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = proc.communicate(json.dumps(offsets), timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        last = out.split()[-1] if out.split() else "?"
+        pytest.fail(f"reading {run_file.name} cut at {last} bytes hung (sweep over {timeout_s:.0f} s)")
+    assert proc.returncode == 0, f"the sweep crashed (exit {proc.returncode}) after offset {out.split()[-1:]}: {err[-2000:]}"
+    return json.loads(out.splitlines()[-1])
+
+
+def test_truncated_run_files_are_refused_in_bounded_time_fast_sweep(tmp_path, short_run):
+    """The replay's version check opened a truncated file without the reader's limits: `bench
+    replay` of files cut at 1,136 or 11,365 bytes hung for more than 200 s. Every cut inside the
+    HDF5 structures of the first 64 KiB, and every 509th byte, now opens or is refused with one
+    located line, in seconds."""
+    data = short_run.read_bytes()
+    offsets = sorted(set(structural_cuts(data)) | set(range(0, SWEEP_BYTES, 509)))
+    result = _sweep(tmp_path, short_run, offsets, timeout_s=240)
+    assert not result["bad"], result["bad"][:5]
+    assert result["worst"][0] < 10.0, f"slowest cut: {result['worst'][1]} bytes in {result['worst'][0]:.1f} s"
+
+
+@pytest.mark.slow
+def test_truncated_run_files_are_refused_in_bounded_time_every_byte(tmp_path, short_run):
+    """As the fast sweep, at every byte offset of the first 64 KiB (65,537 cuts: 19 min on a loaded
+    2-core machine, slowest cut 1.0 s; BENCH_SLOW=1)."""
+    result = _sweep(tmp_path, short_run, list(range(0, SWEEP_BYTES + 1)), timeout_s=4 * 3600)
+    assert not result["bad"], result["bad"][:5]
+    assert result["worst"][0] < 10.0, f"slowest cut: {result['worst'][1]} bytes in {result['worst'][0]:.1f} s"
+
+
+def _run_all(jobs: list[tuple[str, list[str], Path]], timeout_s: float = 60.0, parallel: int = 4) -> dict[str, tuple[int, str, str, float]]:
+    """Run ``python -m bench ARGS`` for every ``(label, args, cwd)``, ``parallel`` at a time, each
+    with a time limit; ``label -> (exit code, stdout, stderr, wall s)``. A job over its limit fails the test."""
+    import time
+
+    results, pending = {}, list(jobs)
+    running: list[tuple[str, subprocess.Popen, float]] = []
+    while pending or running:
+        while pending and len(running) < parallel:
+            label, args, cwd = pending.pop(0)
+            running.append((label, subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=cwd, stdout=subprocess.PIPE,
+                                                    stderr=subprocess.PIPE, text=True), time.monotonic()))
+        label, proc, t0 = running.pop(0)
+        try:
+            out, err = proc.communicate(timeout=max(1.0, timeout_s - (time.monotonic() - t0)))
+        except subprocess.TimeoutExpired:
+            for _, p, _ in running + [(label, proc, t0)]:
+                p.kill()
+            pytest.fail(f"bench {label} did not finish within {timeout_s:.0f} s")
+        results[label] = (proc.returncode, out, err, time.monotonic() - t0)
+    return results
+
+
+def test_cli_on_truncated_run_files_exits_2_with_one_line(tmp_path, short_run):
+    """`bench replay` and `bench inspect` on cuts at the reported points and inside the first
+    HDF5 structures; `report`, `diagnose`, `calibrate` and `catalog rebuild` at the reported
+    points: every one finishes in seconds, refusing with exit 2 and one located line (catalog
+    rebuild: exit 1, the file listed as unreadable), never a traceback."""
+    data = short_run.read_bytes()
+    structural = [c for c in structural_cuts(data) if c > 48]
+    picks = sorted(set(REPORTED_CUTS) | set(structural[:: max(1, len(structural) // 4)][:4]))
+    jobs = []
+    for n in picks:
+        path = tmp_path / f"cut{n}.h5"
+        path.write_bytes(data[:n])
+        with pytest.raises(InputError):  # the premise: this cut is not a readable run file
+            read_run_summary(path)
+        jobs += [(f"replay {path.name}", ["replay", str(path), "--runs-dir", str(tmp_path / "replays")], tmp_path),
+                 (f"inspect {path.name}", ["inspect", str(path)], tmp_path)]
+    for n in REPORTED_CUTS:
+        path = tmp_path / f"cut{n}.h5"
+        jobs += [(f"report {path.name}", ["report", str(path), "-o", str(tmp_path / f"r{n}.html")], tmp_path),
+                 (f"diagnose {path.name}", ["diagnose", str(path)], tmp_path),
+                 (f"calibrate {path.name}", ["calibrate", "noise", str(path)], tmp_path)]
+        cat = tmp_path / f"catalog{n}"
+        cat.mkdir()
+        shutil.copy(path, cat / path.name)
+        jobs.append((f"catalog {path.name}", ["catalog", "rebuild", str(cat)], tmp_path))
+    for label, (rc, out, err, wall) in _run_all(jobs).items():
+        assert "Traceback" not in out + err and "internal error" not in err, (label, err[-2000:])
+        assert wall < 30.0, (label, wall)
+        name = label.split()[1]
+        if label.startswith("catalog"):
+            assert rc == 1 and name in err and "unreadable" in out + err, (label, rc, out[-500:], err[-500:])
+            continue
+        assert rc == 2, (label, rc, out[-500:], err[-1000:])
+        located = [line for line in err.splitlines() if line.startswith(str(tmp_path / name))]
+        assert len(located) == 1 and located[0] == err.strip().splitlines()[-1], (label, err[-1000:])  # progress lines may come before
+
+
+def test_a_fifo_or_device_named_as_a_run_file_is_refused_not_waited_on(tmp_path, worker):
+    """Opening a FIFO as a run file blocked forever (the reader read its signature with open())."""
+    fifo = tmp_path / "fifo.h5"
+    os.mkfifo(fifo)
+    for path in (fifo, Path("/dev/zero")):
+        results = worker.read(path)
+        assert results["summary"][0] == "InputError" and "not a regular file" in results["summary"][1], results
+        _assert_only_input_errors(path, results)
+
+
+def craft(src: Path, dst: Path, *, attrs: dict | None = None, config_text: str | None = None, procedure_text: str | None = None,
+          procedure_event: dict | None = None, move: dict[str, str] | None = None, edit=None) -> Path:
+    """A copy of the run file ``src`` at ``dst`` with root attributes, the procedure or config text,
+    keys of the 'procedure' event's JSON, or the names of groups (``move``: old path -> new path)
+    changed, as a hostile file would have them; ``edit(h5py.File)`` for anything else."""
+    from bench.record import layout
+    from bench.record.skeleton import write_text
+
+    shutil.copy(src, dst)
+    with h5py.File(dst, "r+") as f:
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v
+        for group, text in ((layout.PROCEDURE, procedure_text), (layout.CONFIG, config_text)):
+            if text is not None:
+                del f[group][layout.TEXT]
+                write_text(f[group], text)
+        if procedure_event is not None:
+            rows, blob = f[layout.EVENTS], f[layout.EVENTS_BLOB]
+            (i,) = np.flatnonzero(rows["kind"][:] == b"procedure")
+            row = rows[i]
+            info = json.loads(blob[row["data_off"]:row["data_off"] + row["data_len"]].tobytes())
+            data = json.dumps({**info, **procedure_event}).encode()
+            at = blob.shape[0]
+            blob.resize((at + len(data),))
+            blob[at:] = np.frombuffer(data, dtype=np.uint8)
+            row["data_off"], row["data_len"] = at, len(data)
+            rows[i] = row
+        for old, new in (move or {}).items():
+            f.move(old, new)
+        if edit is not None:
+            edit(f)
+    return dst
+
+
+_CRAFTED_WORKER = r"""
+import contextlib, io, json, os, sys, tempfile
+os.environ["COLUMNS"] = "400"
+events = []
+WATCHED = ("open", "os.mkdir", "os.symlink", "os.link", "os.rename", "os.remove", "os.rmdir", "os.truncate", "os.chmod",
+           "os.listdir", "os.scandir", "shutil.copyfile", "shutil.rmtree")
+def hook(event, args):
+    if event in WATCHED and args and isinstance(args[0], (str, bytes)):
+        events.append([event, os.fsdecode(args[0])])
+sys.addaudithook(hook)
+from bench.cli import main
+
+out = {}
+for case in json.loads(sys.stdin.read()):
+    tempfile.tempdir = case["tmpdir"]  # where a replay makes its private directory
+    os.chdir(case["cwd"])
+    events.clear()
+    o, e = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(o), contextlib.redirect_stderr(e):
+        rc = main(["replay", case["run_file"], "--runs-dir", case["runs_dir"]])
+    touched = [ev for ev in events if ev[1].startswith(case["foreign"])]
+    out[case["label"]] = [rc, o.getvalue(), e.getvalue(), touched]
+print(json.dumps(out))
+"""
+
+
+def _listing(*dirs: Path) -> dict[str, list[str]]:
+    return {str(d): sorted(str(p.relative_to(d)) for p in d.rglob("*")) for d in dirs}
+
+
+def replay_crafted(tmp_path: Path, cases: dict[str, Path], foreign: Path) -> dict[str, tuple[int, str, str, list]]:
+    """``bench replay`` of every crafted file in one worker process (in-process replays, one import),
+    each in a fresh working directory with its own temporary directory; returns ``label -> (exit
+    code, stdout, stderr, file-system calls on paths under foreign)`` and checks that nothing
+    was created, changed or removed in ``foreign``, the working directory or the temporary
+    directory (the replay's private directory is gone afterwards): only files in the runs directory."""
+    jobs, dirs = [], {}
+    for label, path in cases.items():
+        base = tmp_path / f"case_{len(jobs)}"
+        cwd, tmpdir, runs = base / "cwd", base / "tmp", base / "runs"
+        for d in (cwd, tmpdir, runs):
+            d.mkdir(parents=True)
+        dirs[label] = (cwd, tmpdir)
+        jobs.append({"label": label, "run_file": str(path), "runs_dir": str(runs), "cwd": str(cwd), "tmpdir": str(tmpdir),
+                     "foreign": str(foreign)})
+    before = _listing(foreign)
+    proc = subprocess.run([sys.executable, "-c", _CRAFTED_WORKER], input=json.dumps(jobs), cwd=ROOT, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    results = json.loads(proc.stdout.splitlines()[-1])
+    assert _listing(foreign) == before, "a replay created, changed or removed files outside its directories"
+    for label, (cwd, tmpdir) in dirs.items():
+        base = cwd.parent
+        left = sorted(str(p.relative_to(base)) for p in base.rglob("*") if p.parent != base / "runs")
+        assert left == ["cwd", "runs", "tmp"], (label, left)
+    return results
+
+
+def test_crafted_paths_in_a_run_file_never_reach_the_file_system(tmp_path, short_run):
+    """A crafted run file made `bench replay` create a symbolic link where the file said (its
+    config named a sensor model with '..'), and a stored procedure path made it read (and quote)
+    files next to that path. Recorded paths and texts are data now: they are written into the
+    replay's private directory and read from there; a name that leaves it is refused, located in
+    the run file, and nothing outside is read or written."""
+    from bench.record import layout
+
+    foreign = tmp_path / "foreign"
+    (foreign / "c" / "d" / "e").mkdir(parents=True)
+    (foreign / "foreign" / "sentinel").mkdir(parents=True)
+    (foreign / "foreign" / "sentinel" / "planted.yaml").write_text("schema: bench-sensor-model/1\n")
+    (foreign / "sentinel").mkdir()  # where the old replay made its link: case_N/tmp/bench-replay-X/../../../foreign/sentinel
+    (foreign / "secret.yaml").write_text("TOPSECRET_7f3a: 1\n")
+    (foreign / "profile.yaml").write_text("TOPSECRET_7f3a: 2\n")
+    summary = read_run_summary(short_run)
+    config = summary.config_text
+    assert "sensor_model: sensors/acs_board_simple.yaml" in config
+    proc = summary.procedure_text
+    call = proc + "  - call: {procedure: secret.yaml}\n"
+    shake = proc + "  - vibrate: {profile: profile.yaml, axis: z}\n"
+    foreign_proc = str(foreign / "proc.yaml")
+    cases = {
+        # the reported attack: the old replay linked <its temp dir>/../../sentinel/planted.yaml
+        "sensor model ..": craft(short_run, tmp_path / "a.h5", attrs={layout.ATTR_CONFIG_PATH: str(foreign / "c" / "d" / "e" / "sim.yaml")},
+                                 config_text=config.replace("sensors/acs_board_simple.yaml", "../../../foreign/sentinel/planted.yaml")),
+        "call next to the recorded path": craft(short_run, tmp_path / "b.h5", procedure_text=call, attrs={layout.ATTR_PROCEDURE_PATH: foreign_proc},
+                                                procedure_event={"path": foreign_proc}),
+        "profile next to the recorded path": craft(short_run, tmp_path / "c.h5", procedure_text=shake,
+                                                   attrs={layout.ATTR_PROCEDURE_PATH: foreign_proc}, procedure_event={"path": foreign_proc}),
+        "absolute call": craft(short_run, tmp_path / "d.h5", procedure_text=proc + f"  - call: {{procedure: {foreign / 'secret.yaml'}}}\n"),
+        "sources key with ..": craft(short_run, tmp_path / "e.h5", procedure_event={"sources": {f"{foreign}/../foreign/secret.yaml": "x"}}),
+        "relative sources key": craft(short_run, tmp_path / "f.h5", procedure_event={"sources": {"../../secret.yaml": "x"}}),
+        "NUL in a sources key": craft(short_run, tmp_path / "g.h5", procedure_event={"sources": {"/tmp/a\0b.yaml": "x"}}),
+        "very long sources key": craft(short_run, tmp_path / "h.h5", procedure_event={"sources": {"/" + "a" * 300 + "/b.yaml": "x"}}),
+        "NUL in the procedure path": craft(short_run, tmp_path / "i.h5", procedure_event={"path": "/tmp/a\0b.yaml"}),
+        "very long config path": craft(short_run, tmp_path / "k.h5", attrs={layout.ATTR_CONFIG_PATH: "/" + "c" * 5000 + ".yaml"}),
+        "instrument name ..": craft(short_run, tmp_path / "l.h5", config_text=config.replace("\n  thermocouples:", "\n  ../../evil:", 1)),
+        "stream name ..": craft(short_run, tmp_path / "m.h5", move={"streams/tvac": "streams/.."}),
+        "very long instrument group": craft(short_run, tmp_path / "n.h5", move={"instruments/tvac": "instruments/" + "t" * 300}),
+        "board column of another shape": craft(short_run, tmp_path / "q.h5", edit=lambda f: (
+            f.move("streams/acs_board/temp", "streams/acs_board/old_temp"),
+            f["streams/acs_board"].create_dataset("temp", data=f["streams/acs_board/old_temp"][:, 0]))),
+    }
+    harmless = {  # recorded paths that only place a text: replayed as usual, inside the private directory
+        "config path with ..": craft(short_run, tmp_path / "o.h5", attrs={layout.ATTR_CONFIG_PATH: "../../../../../" + str(foreign / "sim.yaml")}),
+        "procedure path with ..": craft(short_run, tmp_path / "p.h5", procedure_event={"path": "/../../" + str(foreign / "x.yaml")}),
+    }
+    results = replay_crafted(tmp_path, cases | harmless, foreign)
+    for label, (rc, out, err, touched) in results.items():
+        path = (cases | harmless)[label]
+        assert not touched, (label, touched)  # not even looked at
+        assert "TOPSECRET" not in out + err, (label, err[-1000:])
+        if label in harmless:
+            assert rc == 0 and "MATCH" in out and not err, (label, rc, out[-1000:], err[-1000:])
+            continue
+        assert rc == 2, (label, rc, out[-1000:], err[-1000:])
+        lines = err.strip().splitlines()
+        assert lines and all(line.startswith(str(path)) for line in lines), (label, err[-1000:])
+        assert "Traceback" not in err and "internal error" not in err, (label, err[-1000:])
+    assert "/config/text:" in results["sensor model .."][2] and "sensor_model" in results["sensor model .."][2]
+    # refused by replay's own check of recorded names, or first by the recorded config's loader
+    assert ("'../../evil' is not a plain name" in results["instrument name .."][2]
+            or "instrument name '../../evil'" in results["instrument name .."][2]), results["instrument name .."][2]
+    assert "column temp of board stream /streams/acs_board is of row shape ()" in results["board column of another shape"][2]
+    for label in ("call next to the recorded path", "profile next to the recorded path", "absolute call"):
+        assert "/procedure/text:" in results[label][2], (label, results[label][2])
+
+
+def _replay_cli(tmp_path: Path, run_file: Path) -> tuple[int, str]:
+    import argparse
+
+    from rich.console import Console
+
+    from bench.replay.cli import cmd_replay
+
+    console = Console(record=True, width=300)
+    rc = cmd_replay(argparse.Namespace(run_file=run_file, procedure=None, runs_dir=tmp_path / "replays", no_board_check=False), console)
+    return rc, console.export_text()
+
+
+@pytest.mark.parametrize("stream, column", [("acs_board", "temp"), ("tvac/monitor", "mount_temp")], ids=["board samples", "polled readings"])
+def test_a_recorded_value_changed_in_the_file_diverges_on_replay(tmp_path, short_run, stream, column):
+    """Adding 10 degC to every recorded board temperature replayed as MATCH: the replay sends the
+    board's recorded rows, so its own stream equals them. A dry-run's board samples are now checked
+    against a re-simulation, polled readings against the recorded replies; the message names the
+    stream, the column, the first differing run time and both values."""
+    rc, text = _replay_cli(tmp_path, short_run)
+    assert rc == 0 and "MATCH" in text, text  # the untouched file
+    path = tmp_path / "tampered.h5"
+    shutil.copy(short_run, path)
+    with h5py.File(path, "r+") as f:
+        g = f["streams"][stream]
+        first = np.asarray(g[column][0], dtype=float)
+        g[column][...] = g[column][...] + 10.0
+        t0 = float(g["time"][0])
+    rc, text = _replay_cli(tmp_path, path)
+    assert rc == 1 and "DIVERGED" in text, text
+    first_div = text.split("DIVERGED: ", 1)[1]
+    assert f"stream {stream} column {column}" in first_div.splitlines()[0], text
+    assert f"at run time {t0:.6f} s" in first_div, text
+    shown = lambda a: ", ".join(f"{x:.10g}" for x in np.atleast_1d(a))  # noqa: E731
+    assert shown(first + 10.0) in first_div and shown(first) in first_div, text

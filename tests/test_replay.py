@@ -134,3 +134,190 @@ def test_replay_of_a_crashed_wall_clock_run_matches_up_to_the_crash(tmp_path: Pa
     assert read_run_summary(path, stale_after_s=0).status == "crashed"
     result = replay(path, runs_dir=tmp_path / "replays")
     assert result.ok, result.report()
+
+
+def test_the_stored_procedure_its_calls_and_profiles_come_from_the_run_file(tmp_path: Path):
+    """The replay reads the stored procedure, its sub-procedures and its vibration profiles from
+    the texts in the run file (placed in a private directory), not from the paths they were
+    recorded at: a run recorded with relative paths replays the same after its lab directory is
+    gone. The board's samples are checked against a re-simulation of the dry-run."""
+    from tests.conftest import SIM_CONFIG, run_cli
+
+    lab = tmp_path / "lab"
+    (lab / "procedures").mkdir(parents=True)
+    (lab / "configs" / "vibration").mkdir(parents=True)
+    profile = Path(__file__).resolve().parents[1] / "configs" / "vibration" / "low_level_sine_sweep.yaml"
+    shutil.copy(profile, lab / "configs" / "vibration" / "sweep.yaml")
+    (lab / "procedures" / "main.yaml").write_text(
+        "schema: bench-procedure/1\nname: vibe_short\ninstruments: [acs_board]\nsteps:\n"
+        "  - power: {instrument: acs_board, on: true}\n  - call: {procedure: sub.yaml}\n"
+        "  - vibrate: {profile: ../configs/vibration/sweep.yaml, axis: z, name: sweep, record: acs_board}\n"
+        "  - power: {instrument: acs_board, on: false}\n")
+    (lab / "procedures" / "sub.yaml").write_text(
+        "schema: bench-procedure/1\nname: sub\ninstruments: [acs_board]\nsteps:\n"
+        "  - record: {instrument: acs_board, duration: 2 s, window: still}\n")
+    r = run_cli("run", "procedures/main.yaml", "--config", str(SIM_CONFIG), "--sim", "--runs-dir", str(tmp_path / "runs"), cwd=lab, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    (run_file,) = (tmp_path / "runs").glob("*.h5")
+    info = json.loads(next(e for e in read_run_summary(run_file).events if e.kind == "procedure").data)
+    assert {Path(p).name for p in info["sources"]} == {"sub.yaml", "sweep.yaml"}  # the profile's text is kept too
+    shutil.rmtree(lab)
+    rc, out = _cli(tmp_path, run_file)
+    assert rc == EXIT_OK and "MATCH" in out, out
+    assert "board samples (acs_board) checked against a re-simulation of the dry-run" in out and "the same" in out, out
+
+
+LAB_PROCEDURE = """schema: bench-procedure/1
+name: lab_short
+instruments: [acs_board]
+steps:
+  - power: {instrument: acs_board, on: true, name: sensors on}
+  - record: {instrument: acs_board, duration: 2 s, window: still, name: still}
+  - power: {instrument: acs_board, on: false, name: sensors off}
+"""
+
+
+def _lab_run(tmp_path: Path) -> tuple[Path, Path]:
+    """A dry-run with a lab config in its own directory whose sensor model and calibration file
+    lie next to it (not the shipped ones: a number changed, another name); (run file, lab dir)."""
+    from tests.conftest import SIM_CONFIG, run_cli
+
+    root = Path(__file__).resolve().parents[1]
+    lab = tmp_path / "mylab"
+    (lab / "models").mkdir(parents=True)
+    model = (root / "configs" / "sensors" / "acs_board_simple.yaml").read_text()
+    assert "gyro_noise_density_dps_rthz: 0.005" in model
+    (lab / "models" / "our_board.yaml").write_text(model.replace("gyro_noise_density_dps_rthz: 0.005", "gyro_noise_density_dps_rthz: 0.0071"))
+    cal = (root / "configs" / "sensors" / "npsat1_qrs11_ground.yaml").read_text()
+    (lab / "models" / "our_gyro_cal.yaml").write_text(cal)
+    config = SIM_CONFIG.read_text()
+    assert "sensor_model: sensors/acs_board_simple.yaml" in config
+    config = config.replace("sensor_model: sensors/acs_board_simple.yaml", "sensor_model: models/our_board.yaml")
+    config = config.replace("    timeout: 0.5 s\n    sim:\n      backend: acs_board",
+                            "    timeout: 0.5 s\n    calibration: models/our_gyro_cal.yaml\n    sim:\n      backend: acs_board", 1)
+    assert "calibration: models/our_gyro_cal.yaml" in config
+    (lab / "lab.yaml").write_text(config)
+    (lab / "lab_short.yaml").write_text(LAB_PROCEDURE)
+    r = run_cli("run", "lab_short.yaml", "--config", "lab.yaml", "--runs-dir", str(tmp_path / "runs"), cwd=lab, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    (run_file,) = (tmp_path / "runs").glob("*.h5")
+    return run_file, lab
+
+
+def _edit_config_sources(run_file: Path, change) -> None:
+    """Replace the data of ``run_file``'s 'config_sources' event with ``change(its JSON)``, as a
+    hostile or damaged file would have it."""
+    import numpy as np
+
+    from bench.record import layout
+
+    with h5py.File(run_file, "r+") as f:
+        rows, blob = f[layout.EVENTS], f[layout.EVENTS_BLOB]
+        (i,) = np.flatnonzero(rows["kind"][:] == layout.EVENT_CONFIG_SOURCES.encode())
+        row = rows[i]
+        info = json.loads(blob[row["data_off"]:row["data_off"] + row["data_len"]].tobytes())
+        data = json.dumps(change(info)).encode()
+        at = blob.shape[0]
+        blob.resize((at + len(data),))
+        blob[at:] = np.frombuffer(data, dtype=np.uint8)
+        row["data_off"], row["data_len"] = at, len(data)
+        rows[i] = row
+
+
+def test_a_lab_configs_own_sensor_model_and_calibration_come_from_the_run_file(tmp_path: Path):
+    """A lab config names a sensor model and a calibration file next to it (the normal case): the
+    run file keeps their texts ('config_sources' event), so the run replays after the lab
+    directory is gone, with the recorded model (the board check re-simulates with it)."""
+    run_file, lab = _lab_run(tmp_path)
+    summary = read_run_summary(run_file)
+    (event,) = [e for e in summary.events if e.kind == "config_sources"]
+    info = json.loads(event.data)
+    assert info["path"] == str((lab / "lab.yaml").resolve())
+    assert {Path(p).name for p in info["sources"]} == {"our_board.yaml", "our_gyro_cal.yaml"}
+    assert "0.0071" in info["sources"][str((lab / "models" / "our_board.yaml").resolve())]
+    shutil.rmtree(lab)
+    rc, out = _cli(tmp_path, run_file)
+    assert rc == EXIT_OK and "MATCH" in out, out
+    assert "board samples (acs_board) checked against a re-simulation of the dry-run" in out and "the same" in out, out
+
+
+def test_the_recorded_sensor_model_text_is_the_one_replayed(tmp_path: Path):
+    """The board check re-simulates with the sensor model text kept in the run file: that text
+    changed in the file (another noise density) makes the re-simulated board samples differ."""
+    run_file, lab = _lab_run(tmp_path)
+    shutil.rmtree(lab)
+    _edit_config_sources(run_file, lambda info: {**info, "sources": {k: v.replace("0.0071", "0.0072") for k, v in info["sources"].items()}})
+    rc, out = _cli(tmp_path, run_file)
+    assert rc == EXIT_FAILED and "DIVERGED" in out and "stream acs_board column gyro" in out, out
+    assert "re-simulated dry-run" in out, out
+
+
+def test_a_config_sources_path_with_dotdot_is_refused(tmp_path: Path, capsys):
+    """A crafted 'config_sources' event whose config path or source path has '..' is refused
+    before anything is written: exit 2, one line naming the run file and the event."""
+    from bench.cli import main
+    from bench.errors import EXIT_BAD_INPUT
+
+    run_file, lab = _lab_run(tmp_path)
+    shutil.rmtree(lab)
+    for label, change in (("source key", lambda info: {**info, "sources": {f"{lab}/../../etc/evil.yaml": "x: 1\n"}}),
+                          ("config path", lambda info: {**info, "path": f"{lab}/../lab.yaml"})):
+        crafted = tmp_path / f"crafted_{label.replace(' ', '_')}.h5"
+        shutil.copy(run_file, crafted)
+        _edit_config_sources(crafted, change)
+        capsys.readouterr()
+        rc = main(["replay", str(crafted), "--runs-dir", str(tmp_path / "replays")])
+        out, err = capsys.readouterr()
+        assert rc == EXIT_BAD_INPUT, (label, out, err)
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(str(crafted)), (label, err)
+        assert "'config_sources' event" in lines[0] and "'..'" in lines[0], (label, err)
+        assert "Traceback" not in err and not (tmp_path / "etc").exists(), (label, err)
+
+
+def test_a_run_file_recorded_before_config_sources_says_so(tmp_path: Path, capsys):
+    """A run file without the 'config_sources' event (recorded before bench kept the config's
+    files) replays as before: the files the config names come from the project's configs/ only;
+    a lab's own sensor model is "not found", and the message says why."""
+    from bench.cli import main
+    from bench.errors import EXIT_BAD_INPUT
+    from bench.record import layout
+
+    run_file, lab = _lab_run(tmp_path)
+    shutil.rmtree(lab)
+    with h5py.File(run_file, "r+") as f:  # as an older bench wrote it: no such event
+        rows = f[layout.EVENTS]
+        kinds = rows["kind"][:]
+        kinds[kinds == layout.EVENT_CONFIG_SOURCES.encode()] = b"note"
+        rows["kind"] = kinds
+    capsys.readouterr()
+    rc = main(["replay", str(run_file), "--runs-dir", str(tmp_path / "replays")])
+    out, err = capsys.readouterr()
+    assert rc == EXIT_BAD_INPUT, (out, err)
+    lines = err.strip().splitlines()
+    assert lines and all(line.startswith(str(run_file)) for line in lines), err
+    assert "/config/text:" in lines[0] and "our_board.yaml" in lines[0] and "not found" in lines[0], err
+    assert "recorded before bench kept the files a config names" in lines[0] and "configs/" in lines[0], err
+
+
+def test_a_sensor_model_named_through_a_symbolic_link_replays(tmp_path: Path):
+    """A lab's `models/our_board.yaml` is a symbolic link to the file it means (`real/...`): the
+    text is kept under the name the config gives too, so the replay (which holds no links) finds it."""
+    import os
+
+    from tests.conftest import run_cli
+
+    run_file, lab = _lab_run(tmp_path)
+    (lab / "models" / "real").mkdir()
+    shutil.move(lab / "models" / "our_board.yaml", lab / "models" / "real" / "our_board.yaml")
+    os.symlink("real/our_board.yaml", lab / "models" / "our_board.yaml")
+    r = run_cli("run", "lab_short.yaml", "--config", "lab.yaml", "--runs-dir", str(tmp_path / "linked"), cwd=lab, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    (linked,) = (tmp_path / "linked").glob("*.h5")
+    info = json.loads(next(e for e in read_run_summary(linked).events if e.kind == "config_sources").data)
+    real = str((lab / "models" / "real" / "our_board.yaml").resolve())
+    named = str((lab / "models").resolve() / "our_board.yaml")
+    assert info["sources"][real] == info["sources"][named] and "0.0071" in info["sources"][named]
+    shutil.rmtree(lab)
+    rc, out = _cli(tmp_path, linked)
+    assert rc == EXIT_OK and "MATCH" in out, out

@@ -307,7 +307,7 @@ def test_verdicts_and_recorded_checks():
     summary = _summary([new, old, limited])
     assert [c.outcome for c in R.check_results(summary)] == ["recorded", "recorded", "passed"]
     v = R.run_verdict(summary, R.check_results(summary))
-    assert v.reasons == ["all 1 checks with limits passed", "2 value(s) recorded without limits (no verdict)"]
+    assert v.reasons == ["the check with limits passed", "2 value(s) recorded without limits (no verdict)"]
     page = Report(f"<h2>1. Verdict and checks</h2>{R.section_verdict(summary, R.check_results(summary))}")
     (rows,) = page.tables("Verdict and checks")
     assert [r[5:] for r in rows[1:]] == [["1 deg/s", "none", "recorded (no limits: no verdict)"]] * 2 + [

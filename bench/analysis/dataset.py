@@ -58,13 +58,16 @@ class Dataset:
 
     ``meta`` holds the CSV's ``# key: value`` lines (numbers converted to float) or the run file's
     attributes; ``source`` names where the data came from (for messages and reports);
-    ``line_numbers`` the 1-based CSV line of each row (``None`` for run files).
+    ``line_numbers`` the 1-based CSV line of each row (``None`` for run files); ``notes`` what the
+    operator must know about rows left out while reading (a run file's damaged chunks, each
+    ``excluded rows 4096–8191 of stream acs_board (t 40.96–81.91 s): checksum failed (gyro)``).
     """
 
     columns: dict[str, np.ndarray]
     meta: dict[str, float | str] = field(default_factory=dict)
     source: str = ""
     line_numbers: np.ndarray | None = None
+    notes: list[str] = field(default_factory=list)
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].shape[0])
@@ -100,7 +103,7 @@ class Dataset:
     def select(self, mask: np.ndarray) -> "Dataset":
         """The rows where ``mask`` is true (a boolean array or index array)."""
         lines = None if self.line_numbers is None else self.line_numbers[mask]
-        return Dataset({k: v[mask] for k, v in self.columns.items()}, dict(self.meta), self.source, lines)
+        return Dataset({k: v[mask] for k, v in self.columns.items()}, dict(self.meta), self.source, lines, list(self.notes))
 
 
 MAX_ABS_VALUE = 1e9
@@ -214,7 +217,25 @@ def dataset_from_csv(path: str | Path) -> Dataset:
             meta[key] = num if math.isfinite(num) else text
         except ValueError:
             meta[key] = text
+        if key in META_RANGES:
+            _check_meta(key, meta[key], Location(table.path, table.meta_lines.get(key)))
     return Dataset(values, meta, str(table.path), np.array(table.lines, dtype=np.int64))
+
+
+META_RANGES: dict[str, tuple[float, float, bool, str]] = {
+    "sample_rate_hz": (0.0, 1e7, False, "Hz"),
+    "latitude_deg": (-90.0, 90.0, True, "deg"),
+}
+"""Metadata the analyses use as numbers: (low, high, low included, units). Anything else is kept as text."""
+
+
+def _check_meta(key: str, value: float | str, where: Location) -> None:
+    """A metadata number the analyses rely on, within its range; :class:`InputError` at its line."""
+    low, high, low_included, units = META_RANGES[key]
+    if not isinstance(value, float):
+        raise InputError(f"expected a number in {units}, got {value!r}", where, key)
+    if not (low <= value if low_included else low < value) or value > high:
+        raise InputError(f"{value:g} {units} is outside the allowed range {low:g}..{high:g} {units}", where, key)
 
 
 # ---- run files ----------------------------------------------------------------------------------
@@ -229,27 +250,53 @@ def dataset_from_run(path: str | Path) -> Dataset:
     recorded: ``ref_rate_*_dps`` (rate-table rate about the platter normal turned into the sensor
     frame by the unit's mount, taken from the run's mount prompts; +z up when none),
     ``table_angle_deg``, ``chamber_temp_c`` (chamber air), ``pressure_torr`` (log-interpolated).
+
+    Rows of damaged chunks (a Fletcher-32 checksum that fails, a chunk zeroed on disk) are left out,
+    and so are the board rows inside a gap a damaged monitor chunk leaves; each is said in
+    :attr:`Dataset.notes`.
     """
     from bench.record.layout import IMPORTED_STREAM, monitor_key
-    from bench.record.reader import read_run_summary, read_stream
+    from bench.record.reader import read_run_summary, read_stream_checked
     from bench.model.geometry import mount_matrix
 
     p = Path(path)
     # only the events read below (operator prompts, import notes): a long run logs every command
     summary = read_run_summary(p, event_kinds=("operator", "note"))
     streams = {s.key for s in summary.streams}
+    notes: list[str] = list(summary.warnings)  # a truncated file, damaged event chunks
     if IMPORTED_STREAM in streams:
-        return _dataset_from_import(p, summary, read_stream(p, IMPORTED_STREAM))
+        imported = read_stream_checked(p, IMPORTED_STREAM)
+        ds = _dataset_from_import(p, summary, imported.data)
+        ds.notes = notes + [e.describe() for e in imported.excluded]
+        return ds
     if "acs_board" not in streams:
         raise InputError(f"{p}: no ACS board stream in this run (streams: {', '.join(sorted(streams)) or 'none'}); "
                          "the analysis needs the sensor outputs")
-    board = read_stream(p, "acs_board", ("gyro", "accel", "temp"))
+    read = read_stream_checked(p, "acs_board", ("gyro", "accel", "temp"))
+    board = read.data
+    notes += [e.describe() for e in read.excluded]
     t = _column(p, board, "acs_board", "time")
     # keep the rows whose time is finite and later than every row kept before it (a repeated or
     # backward time, or NaN from a damaged file, would break "time_s strictly increasing")
     finite = np.isfinite(t)
     latest = np.maximum.accumulate(np.where(finite, t, -np.inf))
     keep = finite & (t > np.concatenate([[-np.inf], latest[:-1]]))
+    if not keep.all():
+        notes.append(f"left out {int(np.count_nonzero(~keep)):,} rows of stream acs_board whose run time is not finite "
+                     "or does not increase")
+    table_monitor, chamber_monitor = monitor_key("rate_table"), monitor_key("tvac")
+    monitors = {key: _read_monitor(p, key, cols, notes) for key, cols in ((table_monitor, ("rate", "angle")),
+                                                                         (chamber_monitor, ("air_temp", "pressure")))
+                if key in streams and t.size}
+    for key, (_mon, gaps) in monitors.items():
+        for e in gaps:  # the monitor's values would be interpolated across the gap: leave those board rows out
+            lo = -np.inf if e.t_before_s is None else e.t_before_s
+            hi = np.inf if e.t_after_s is None else e.t_after_s
+            inside = (t > lo) & (t < hi) & keep
+            if inside.any():
+                keep &= ~inside
+                notes.append(f"left out {int(np.count_nonzero(inside)):,} rows of stream acs_board "
+                             f"(t {float(t[inside][0]):.2f}–{float(t[inside][-1]):.2f} s) inside that gap of stream {key}")
     if keep.all():
         keep = slice(None)  # views, not copies, of a clean recording's columns
     t = t[keep]
@@ -262,9 +309,8 @@ def dataset_from_run(path: str | Path) -> Dataset:
     cols["temp_c"] = _column(p, board, "acs_board", "temp", 1)[keep][:, 0]
     cols["power_on_s"] = t - (t[0] if t.size else 0.0)
 
-    table_monitor, chamber_monitor = monitor_key("rate_table"), monitor_key("tvac")
-    if table_monitor in streams and t.size:
-        mon = read_stream(p, table_monitor, ("rate", "angle"))
+    if table_monitor in monitors:
+        mon = monitors[table_monitor][0]
         tm = _column(p, mon, table_monitor, "time")
         rate = _interp(t, tm, _column(p, mon, table_monitor, "rate"))
         ups = [(e.t_s, m.group(1)) for e in summary.events if (m := _MOUNT_PROMPT.search(e.message))]
@@ -278,8 +324,8 @@ def dataset_from_run(path: str | Path) -> Dataset:
         # unwrapped before interpolating: a sample between 359.9 and 0.1 deg is near 0, not 180
         angle = np.degrees(np.unwrap(np.radians(_column(p, mon, table_monitor, "angle"))))
         cols["table_angle_deg"] = _interp(t, tm, angle) % 360.0
-    if chamber_monitor in streams and t.size:
-        mon = read_stream(p, chamber_monitor, ("air_temp", "pressure"))
+    if chamber_monitor in monitors:
+        mon = monitors[chamber_monitor][0]
         tm = _column(p, mon, chamber_monitor, "time")
         cols["chamber_temp_c"] = _interp(t, tm, _column(p, mon, chamber_monitor, "air_temp"))
         pressure = np.clip(_column(p, mon, chamber_monitor, "pressure"), 1e-12, None)
@@ -288,7 +334,17 @@ def dataset_from_run(path: str | Path) -> Dataset:
     lat = _latitude_from_config(summary.config_text)
     if lat is not None:
         meta["latitude_deg"] = lat
-    return Dataset(cols, meta, str(p))
+    return Dataset(cols, meta, str(p), notes=notes)
+
+
+def _read_monitor(p: Path, key: str, columns: tuple[str, ...], notes: list[str]):
+    """``(rows, excluded)`` of monitor stream ``key`` (only ``columns``): its good rows, and the
+    ranges of damaged chunks left out, each said in ``notes``."""
+    from bench.record.reader import read_stream_checked
+
+    read = read_stream_checked(p, key, columns)
+    notes += [e.describe() for e in read.excluded]
+    return read.data, read.excluded
 
 
 def _dataset_from_import(p: Path, summary, stream: dict[str, np.ndarray]) -> Dataset:

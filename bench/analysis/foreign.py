@@ -884,6 +884,7 @@ def load_data(path: str | Path, mapping: ForeignMapping | Sequence[str] | None =
     if not mapping:
         if is_run_file(p) is False:
             raise foreign_file_error(p)
-        return load_dataset(p), []
+        ds = load_dataset(p)
+        return ds, list(ds.notes)  # rows left out of a damaged run file
     ds = load_dataset(p, mapping)
     return ds, load_notes(ds)

@@ -60,13 +60,16 @@ class Compensation:
         return f"NPSAT1 Eq. 2 ({', '.join(terms) or 'nothing'}) from {', '.join(self.sources)}"
 
 
-def load_compensation(paths: list[str | Path]) -> Compensation:
+def load_compensation(paths: list[str | Path], texts: dict[str, str] | None = None) -> Compensation:
     """Merge the compensation terms of ``paths`` (see the module docstring); :class:`InputError`
-    (located) for a file that is missing, malformed or carries no gyro compensation."""
+    (located) for a file that is missing, malformed or carries no gyro compensation. ``texts``:
+    receives path -> text of every file read (each is read once; a config keeps them for replay)."""
     comp = Compensation()
     for path in paths:
         p = Path(path)
         src = load_yaml(p, "calibration file")
+        if texts is not None:
+            texts[str(p)] = src.text
         data = src.root.plain()
         where = src.root.location
         if not isinstance(data, dict):
@@ -78,7 +81,7 @@ def load_compensation(paths: list[str | Path]) -> Compensation:
                 comp.b_cons_dps = np.array([float(data["b_cons_dps"][a]) for a in AXES])
                 comp.m = _matrix(data["M"])
             elif data.get("model") == "npsat1_gyro":
-                _from_sensor_model(p, comp)
+                _from_sensor_model(p, src.text, comp)
             else:
                 raise InputError("expected a thermal or rate-transfer calibration (bench calibrate ... -o) or an npsat1_gyro "
                                  "sensor model", where, "method")
@@ -96,10 +99,10 @@ def _matrix(rows) -> np.ndarray:
     return m
 
 
-def _from_sensor_model(p: Path, comp: Compensation) -> None:
-    from bench.model.loader import load_sensor_model
+def _from_sensor_model(p: Path, text: str, comp: Compensation) -> None:
+    from bench.model.loader import parse_sensor_model
 
-    g = load_sensor_model(p).gyro
+    g = parse_sensor_model(text, str(p)).gyro  # the text already read, not the file again
     if g is None or g.in_run_poly_variable != "temp_c":
         raise InputError("a sensor model compensates only with its in-run polynomial in temp_c (the °C form, "
                          "e.g. npsat1_qrs11_ground.yaml)", Location(p), "in_run_poly_variable")

@@ -38,7 +38,7 @@ from bench.model.rate_table import TableParams, move_time_s
 from bench.procedure.signals import DEFAULT_KINDS, parse_signal
 
 if TYPE_CHECKING:  # pragma: no cover
-    from bench.procedure.loader import Step
+    from bench.procedure.loader import Procedure, Step
 
 PROMPT_TYPES = ("prompt", "mount")
 """Steps that wait for the operator (counted 0 s)."""
@@ -286,3 +286,14 @@ def _vibration_s(profile: object) -> float:
         return float(load_vibration(Path(str(profile))).duration_s)
     except (InputError, OSError, ValueError):
         return 0.0
+
+
+def run_file_bytes(procedure: "Procedure") -> int:
+    """Rough run-file size (B) for the free-space check before a run: streamed rows only while a
+    step records (``record``, or ``record:`` on a wait/vibration), as if at 1 kHz with 20 values of
+    8 B, plus the polled instruments for the whole estimated run (5 instruments at 1 Hz, 10 values
+    of 8 B), plus 1 MB of fixed overhead."""
+    est = procedure.estimate()
+    recording_s = sum(e.duration_s for step, e in zip(procedure.steps, est.steps)
+                      if step.type == "record" or step.params.get("record"))
+    return int(recording_s * 1000 * 20 * 8 + est.total_s * 5 * 10 * 8) + 1_000_000

@@ -89,7 +89,7 @@ class Procedure:
     limits: dict[str, dict[str, tuple[float | None, float | None, Location]]] = field(default_factory=dict)
     interlocks: list[Interlock] = field(default_factory=list)
     sources: dict[str, str] = field(default_factory=dict)
-    """Text of every called procedure file, by path (the run file keeps them)."""
+    """Text of every called procedure file and vibration profile, by path (the run file keeps them)."""
     unit_required_at: Location | None = None
     """Where the procedure (or a procedure it calls) says ``requires: {unit: true}``: ``bench run``
     then needs ``--unit``; None when no unit under test is required."""
@@ -399,11 +399,14 @@ class _Expander:
             hi = "inf" if spec.maximum is None else f"{spec.maximum:g}"
             self.errors.append(InputError(f"{value:g} {units} is outside the allowed range {lo}..{hi} {units}".replace("  ", " "), loc, fname))
             return None
+        if spec.exclusive_minimum and spec.minimum is not None and value <= spec.minimum:
+            self.errors.append(InputError(f"{value:g} {units} must be above {spec.minimum:g} {units}".replace("  ", " "), loc, fname))
+            return None
         return value
 
     def _vibration(self, node: Node, fname: str, doc: _Doc) -> str | None:
         """A vibration profile file relative to the procedure, loaded now so its errors show at validation."""
-        from bench.model.vibration import load_vibration
+        from bench.model.vibration import parse_vibration
 
         if not isinstance(node.value, str):
             self.errors.append(InputError("expected the path of a vibration file", node.location, fname))
@@ -417,10 +420,12 @@ class _Expander:
             self.errors.append(InputError("expected a file name without NUL characters", node.location, fname))
             return None
         try:
-            load_vibration(path)
+            src = load_yaml(path, "vibration file")
+            parse_vibration(src.text, str(path))
         except InputError as exc:
             self.errors.append(InputError(f"vibration profile: {exc.one_line()}", node.location, fname))
             return None
+        self.sources[str(path)] = src.text  # kept in the run file: a replay reads it from there
         return str(path)
 
     def _instrument(self, node: Node, fname: str, spec: FieldSpec, doc: _Doc) -> str | None:

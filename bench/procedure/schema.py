@@ -30,6 +30,8 @@ class FieldSpec:
     default: object = None
     minimum: float | None = None
     maximum: float | None = None
+    exclusive_minimum: bool = False
+    """The value must be above ``minimum``, not equal to it (a band of 0 could never be met)."""
     doc: str = ""
     choices: tuple[str, ...] = ()
     instrument_kinds: tuple[str, ...] = ()
@@ -102,7 +104,8 @@ STEP_TYPES: dict[str, StepSpec] = {
             "ramp": FieldSpec("quantity", f"{TEMPERATURE_DIFFERENCE}/min", required=False, minimum=0.0,
                               doc="set-point ramp rate (0 or absent: step change, heater/cooler limited)"),
             "wait": FieldSpec("bool", required=False, default=False, doc="wait until the chamber air is within `band` of the set point"),
-            "band": FieldSpec("quantity", TEMPERATURE_DIFFERENCE, required=False, default=1.0, minimum=0.0, doc="with wait: how close (default 1 degC)"),
+            "band": FieldSpec("quantity", TEMPERATURE_DIFFERENCE, required=False, default=1.0, minimum=0.0, exclusive_minimum=True,
+                              doc="with wait: how close (default 1 degC; above 0: the air never sits exactly on the set point)"),
             "timeout": TIMEOUT,
         },
         "Give the chamber a new set point (optionally ramped); optionally wait until the air reaches it.",

@@ -250,4 +250,4 @@ def run_verdict(summary: "RunSummary", checks: list["CheckResult"] | None = None
         return Verdict("INCOMPLETE", unfinished + ([f"{len(judged)} checks passed before that"] if judged else []) + extra)
     if not judged:
         return Verdict("NO VERDICT", ["no check in this run has limits" if checks else "this run has no checks"] + extra)
-    return Verdict("PASSED", [f"all {len(judged)} checks with limits passed"] + extra)
+    return Verdict("PASSED", [f"all {len(judged)} checks with limits passed" if len(judged) > 1 else "the check with limits passed"] + extra)

@@ -18,6 +18,7 @@ import h5py
 from bench.errors import DestinationError, RecorderError
 from bench.record.layout import as_utc
 from bench.record.reasons import mb, os_reason
+from bench.record.streams import MAX_CHUNK_BYTES
 
 SPACE_MARGIN_BYTES = 50 * 1024 * 1024
 """Free space (bytes) required on top of the estimated run-file size."""
@@ -96,11 +97,25 @@ def create_new_file(runs_dir: Path, started_utc: datetime, procedure_name: str) 
         if path.exists():
             continue
         try:
-            return h5py.File(path, "x", libver="latest"), path
+            # chunk cache of each dataset: one largest chunk (h5py's default, 8 MiB a dataset, filled as a run
+            # grows and made the peak memory grow with run length, docs/benchmarks.md)
+            return h5py.File(path, "x", libver="latest", rdcc_nbytes=MAX_CHUNK_BYTES), path
         except FileExistsError:
             continue
         except PermissionError as exc:
             raise DestinationError(f"run file {path} cannot be created: {os_reason(exc)}") from None
         except Exception as exc:  # noqa: BLE001 - h5py raises several types; report them all the same way
             raise RecorderError(f"writing {path} failed: {os_reason(exc)}") from None
+        except BaseException:  # interrupted (KeyboardInterrupt) while HDF5 made the file: it holds nothing
+            _remove_new(path)
+            raise
     raise DestinationError(f"no free run-file name for {base} in {runs_dir}")
+
+
+def _remove_new(path: Path) -> None:
+    """Delete the file :func:`create_new_file` was making at ``path`` (the name did not exist just
+    before, and HDF5's exclusive mode refuses an existing one), if it got as far as the disk."""
+    try:
+        os.unlink(path)
+    except OSError:
+        pass

@@ -26,9 +26,9 @@ BLOB_UNITS = "bytes (utf-8 messages and raw event data)"
 
 def create_event_datasets(f: h5py.File) -> None:
     """Create the empty, resizable ``/events`` and ``/events_blob`` (before SWMR mode)."""
-    ev = f.create_dataset(layout.EVENTS, shape=(0,), maxshape=(None,), dtype=layout.EVENT_DTYPE, chunks=(EVENT_CHUNK_ROWS,))
+    ev = f.create_dataset(layout.EVENTS, shape=(0,), maxshape=(None,), dtype=layout.EVENT_DTYPE, chunks=(EVENT_CHUNK_ROWS,), fletcher32=True)
     ev.attrs[layout.ATTR_UNITS] = EVENTS_UNITS
-    blob = f.create_dataset(layout.EVENTS_BLOB, shape=(0,), maxshape=(None,), dtype="u1", chunks=(BLOB_CHUNK_BYTES,))
+    blob = f.create_dataset(layout.EVENTS_BLOB, shape=(0,), maxshape=(None,), dtype="u1", chunks=(BLOB_CHUNK_BYTES,), fletcher32=True)
     blob.attrs[layout.ATTR_UNITS] = BLOB_UNITS
 
 
@@ -38,6 +38,21 @@ def cut_utf8(text: str, limit: int) -> bytes:
     if len(raw) <= limit:
         return raw
     return raw[:limit].decode("utf-8", errors="ignore").encode("utf-8")
+
+
+MAX_SOURCES_KEPT = 256
+"""Encoded event sources kept for reuse (instrument and step names: a handful per run)."""
+
+
+def _encode_kind(kind: str) -> bytes:
+    """An event kind as stored: 1-16 ASCII characters, else ``ValueError``."""
+    try:
+        kind_b = kind.encode("ascii")
+    except UnicodeEncodeError:
+        raise ValueError(f"event kind {kind!r} must be ASCII") from None
+    if not 0 < len(kind_b) <= layout.EVENT_KIND_BYTES:
+        raise ValueError(f"event kind {kind!r} must be 1 to {layout.EVENT_KIND_BYTES} characters")
+    return kind_b
 
 
 class EventLog:
@@ -50,29 +65,30 @@ class EventLog:
         self._blob_pending = bytearray()
         self._blob_total = 0  # bytes in the blob including pending (= offset of the next message)
         self._on_disk = 0  # event rows written
+        self._kinds: dict[str, bytes] = {}
+        self._sources: dict[str, bytes] = {}
 
     def add(self, kind: str, source: str, message: str, *, t_s: float, step: int, data: bytes) -> None:
         """Buffer one event (see :meth:`bench.record.RunRecorder.event`). Raises ``ValueError`` for a
-        kind that is not 1-16 ASCII characters or a step outside int32."""
-        try:
-            kind_b = kind.encode("ascii")
-        except UnicodeEncodeError:
-            raise ValueError(f"event kind {kind!r} must be ASCII") from None
-        if not 0 < len(kind_b) <= layout.EVENT_KIND_BYTES:
-            raise ValueError(f"event kind {kind!r} must be 1 to {layout.EVENT_KIND_BYTES} characters")
+        kind that is not 1-16 ASCII characters or a step outside int32. A run logs every command and
+        reply (tens per second of run time): kinds and sources are encoded once and kept."""
+        kind_b = self._kinds.get(kind)
+        if kind_b is None:
+            kind_b = self._kinds[kind] = _encode_kind(kind)
+        source_b = self._sources.get(source)
+        if source_b is None:
+            source_b = cut_utf8(source, layout.EVENT_SOURCE_BYTES)
+            if len(self._sources) < MAX_SOURCES_KEPT:
+                self._sources[source] = source_b
         if not -(2**31) <= step < 2**31:
             raise ValueError(f"event step {step} out of range")
         msg_b = message.encode("utf-8", errors="surrogateescape")
-        data_b = bytes(data)
         msg_off = self._blob_total
-        data_off = msg_off + len(msg_b)
+        n_msg, n_data = len(msg_b), len(data)
         self._blob_pending += msg_b
-        self._blob_pending += data_b
-        self._blob_total += len(msg_b) + len(data_b)
-        self._rows.append(
-            (float(t_s), time.time(), kind_b, cut_utf8(source, layout.EVENT_SOURCE_BYTES), int(step),
-             msg_off, len(msg_b), data_off, len(data_b))
-        )
+        self._blob_pending += data
+        self._blob_total = msg_off + n_msg + n_data
+        self._rows.append((float(t_s), time.time(), kind_b, source_b, int(step), msg_off, n_msg, msg_off + n_msg, n_data))
 
     def need_bytes(self) -> int:
         """Bytes of new chunks writing the buffered events allocates."""

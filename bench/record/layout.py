@@ -273,6 +273,12 @@ OUTCOME_RECORDED = "recorded"
 stored, no verdict is given (neither passed nor failed)."""
 CHECK_OUTCOMES = (OUTCOME_PASSED, OUTCOME_FAILED, OUTCOME_RECORDED)
 """Outcomes of a check step (first word of its ``step_end`` message and ``outcome`` of its event)."""
+EVENT_CONFIG_SOURCES = "config_sources"
+"""The files the lab config named and its loader read (sensor models, calibration files), logged
+once when the run file is created (source ``runner``, message the config's name): data JSON
+``path`` (the config's absolute path, its directory resolved) and ``sources`` (resolved absolute
+path -> text), as the ``procedure`` event holds the procedure's. A replay reads them from here;
+files written before it lack it."""
 EVENT_OPERATOR = "operator"
 """An operator's answer; the message is a JSON object (a prompt step: source ``prompt``)."""
 SOURCE_CALIBRATION = "calibration"

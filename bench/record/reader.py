@@ -3,8 +3,8 @@
 Every path and attribute name comes from :mod:`bench.record.layout`.
 
 A finished file is opened normally; a file in SWMR write mode (being written, or its writer died)
-as an HDF5 SWMR reader; a file that was never switched to SWMR mode without file locking (which
-HDF5 then refuses: nothing was recorded). Anything that is not a readable bench run file (missing, empty,
+as an HDF5 SWMR reader; a file open for writing outside SWMR mode without file locking (which
+HDF5 then refuses: being set up or finalised, or its writer stopped then). Anything that is not a readable bench run file (missing, empty,
 truncated, corrupted, another HDF5 file) raises :class:`InputError`
 ``"<path>: not a readable bench run file: <reason>"``; h5py exceptions never leak out.
 
@@ -17,6 +17,7 @@ import ctypes
 import json
 import os
 import re
+import stat
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -33,6 +34,7 @@ from rich.text import Text
 from bench.errors import InputError
 from bench.record import layout
 from bench.record.checks import check_counts, check_results, checks_verdict, describe_limits, display_value
+from bench.record.chunks import StreamRows, checksum_state, excluded_rows, is_checksum_failure, read_rows, read_stream_rows
 from bench.termtable import fit_tables
 
 STALE_AFTER_S = 10.0
@@ -56,6 +58,8 @@ class StreamSummary:
     t_start_s: float | None
     t_end_s: float | None
     rate_hz: float | None
+    damage: str = ""
+    """Why the first or last run time could not be read (a chunk failing its checksum), else ``""``."""
 
 
 @dataclass
@@ -184,6 +188,9 @@ class RunSummary:
     traffic: dict[str, TrafficSummary] = field(default_factory=dict)
     """Instrument -> its ``command``/``reply`` traffic, counted over the whole file (also when
     those events are not decoded)."""
+    checksums: str = ""
+    """Fletcher-32 checksums on the stream and event datasets: ``all``, ``some`` or ``none`` (a file
+    written before checksums); the summary does not read every chunk (``bench inspect --verify`` does)."""
 
     @property
     def live_status(self) -> str:
@@ -212,7 +219,7 @@ def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_un
     path = Path(path)
     with _open_run(path) as (f, warnings):
         summary = _summarise(path, f, stale_after_s, time.time() if now_unix is None else now_unix, event_kinds, traffic)
-        summary.warnings = warnings
+        summary.warnings = warnings + summary.warnings  # the file's, then damaged event chunks
         return summary
 
 
@@ -220,7 +227,22 @@ def read_stream(path: Path, stream_key: str, columns: Collection[str] | None = N
     """All rows of stream ``stream_key`` (:func:`bench.record.layout.stream_key`, e.g.
     :func:`~bench.record.layout.monitor_key`): ``time`` (run time, s) and every column (only ``time`` and
     those of ``columns`` that exist, when given), each cut to the number of rows complete in every
-    dataset. Raises :class:`InputError` for an unknown stream."""
+    dataset. Raises :class:`InputError` for an unknown stream, and for damaged data (a chunk of
+    those columns failing its checksum, or zeroed on disk), naming the rows and their run times;
+    :func:`read_stream_checked` leaves those rows out instead."""
+    got = read_stream_checked(path, stream_key, columns)
+    if got.excluded:
+        first = got.excluded[0]
+        more = f" (and {len(got.excluded) - 1} more damaged range(s))" if len(got.excluded) > 1 else ""
+        raise InputError(f"{path}: damaged data: {first.damage_text()}{more}; "
+                         f"'bench inspect --verify {path}' lists every damaged chunk")
+    return got.data
+
+
+def read_stream_checked(path: Path, stream_key: str, columns: Collection[str] | None = None) -> StreamRows:
+    """:func:`read_stream` without the rows of damaged chunks (a chunk failing its Fletcher-32
+    checksum, or zeroed on disk: :mod:`bench.record.chunks`): ``.data`` holds the good rows of every
+    column read, ``.excluded`` the row ranges left out with their run times and reasons."""
     path = Path(path)
     with _open_run(path) as (f, _warnings):
         groups = _stream_groups(f)
@@ -231,7 +253,7 @@ def read_stream(path: Path, stream_key: str, columns: Collection[str] | None = N
         limit = _size_limit(path)
         rows = min(_checked_rows(g[n], limit) for n in names)
         wanted = names if columns is None else [n for n in names if n == layout.TIME or n in columns]
-        return {n: np.asarray(g[n][:rows]) for n in wanted}
+        return read_stream_rows(f, path, stream_key, {n: g[n] for n in wanted}, rows)
 
 
 # ---- opening ------------------------------------------------------------------------------------
@@ -257,6 +279,36 @@ def _open_run(path: Path) -> Iterator[tuple[h5py.File, list[str]]]:
             pass
 
 
+@contextmanager
+def open_run_file(path: Path) -> Iterator[h5py.File]:
+    """The run file at ``path``, open read-only as every reader opens it (bounded in time on a
+    damaged file: :func:`_open_h5`) and its format checked. Any failure while it is open becomes
+    :class:`InputError` ``"<path>: not a readable bench run file: <reason>"``."""
+    with _open_run(Path(path)) as (f, _warnings):
+        yield f
+
+
+def read_format_version(path: Path) -> int | None:
+    """The ``format_version`` root attribute of the run file at ``path`` (None when it has none: not
+    written by bench), read without judging it (``bench replay`` refuses older versions with its own
+    message). Opened as every reader opens it, so a truncated or corrupted file is refused in
+    bounded time; :class:`InputError` ``"<path>: not a readable bench run file: <reason>"``."""
+    path = Path(path)
+    f, truncated = _open_h5(path)
+    try:
+        if layout.ATTR_FORMAT_VERSION not in f.attrs:
+            return None
+        return int(np.asarray(f.attrs[layout.ATTR_FORMAT_VERSION]).item())
+    except Exception as exc:  # noqa: BLE001 - corrupted files make h5py/numpy raise anything
+        reason = f"bad {layout.ATTR_FORMAT_VERSION} attribute ({_describe(exc)})"
+        raise _unreadable(path, f"{truncated} ({reason})" if truncated else reason) from None
+    finally:
+        try:
+            f.close()
+        except Exception:  # noqa: BLE001 - closing a read-only handle of a damaged file
+            pass
+
+
 def _open_h5(path: Path) -> tuple[h5py.File, str]:
     """Open a run file read-only, whatever state its writer is (or was) in.
 
@@ -273,9 +325,18 @@ def _open_h5(path: Path) -> tuple[h5py.File, str]:
             raise _unreadable(path, "no such file")
         if path.is_dir():
             raise _unreadable(path, "it is a directory")
-        size = path.stat().st_size
-        with open(path, "rb") as fh:
-            head = fh.read(8)
+        # O_NONBLOCK and fstat: a FIFO (also one swapped in after a check) would block forever
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                raise _unreadable(path, "not a regular file (a device or FIFO)")
+            size = st.st_size
+            head = os.read(fd, 8)
+        finally:
+            os.close(fd)
+    except ValueError:  # a NUL character in the name
+        raise _unreadable(path, "expected a file name without NUL characters") from None
     except OSError as exc:
         raise _unreadable(path, exc.strerror or str(exc)) from None
     if size == 0:
@@ -314,7 +375,7 @@ def _open_h5(path: Path) -> tuple[h5py.File, str]:
         # Never switched to SWMR mode: the writer died (or is) before recording started.
         return h5py.File(path, "r", locking=False), ""
     except Exception as exc:  # noqa: BLE001
-        raise _unreadable(path, _describe(exc)) from None
+        raise _unreadable(path, _describe(exc, path)) from None
 
 
 _GCOL_SCAN_BYTES = 1 << 20
@@ -435,13 +496,21 @@ def _unreadable(path: Path, reason: str) -> InputError:
     return InputError(f"{path}: not a readable bench run file: {reason}")
 
 
-def _describe(exc: BaseException) -> str:
-    """A short reason for an h5py/HDF5 failure."""
+def _describe(exc: BaseException, path: Path | None = None) -> str:
+    """A short reason for an h5py/HDF5 failure (of the file at ``path``, whose size it then gives)."""
     text = str(exc)
     if "already open for write" in text:
+        # Set up (before SWMR mode) and finalising (after it) both leave this mark while they run; a
+        # writer killed then, or whose last writes failed (a full disk), leaves it for good. Which
+        # one, and whether rows were recorded, cannot be told without opening the file.
+        try:
+            size = f"its {path.stat().st_size:,} bytes" if path is not None else "its contents"
+        except OSError:
+            size = "its contents"
         return (
-            "recording had not started: the writer is still setting the file up or stopped before switching "
-            "it to SWMR mode, so HDF5 cannot open it (nothing was recorded)"
+            "HDF5 refuses to open it: it is marked open for writing outside SWMR mode, by a writer setting it up or "
+            "writing its final status right now, or by one that stopped without closing it (killed, or its disk was "
+            f"full); {size} cannot be read, and unless a bench process is writing it, the file is damaged"
         )
     if "truncated file" in text:
         m = re.search(r"truncated file: ([^)]*)", text)
@@ -462,6 +531,18 @@ def _size_limit(path: Path) -> int:
     """Most bytes any dataset of this file can hold: data is stored uncompressed, so a dataset
     larger than the file (plus a few chunks a live writer may just be adding) is corrupted."""
     return path.stat().st_size + 4 * 1024 * 1024
+
+
+def first_row_at_or_after(ds: h5py.Dataset, t: float, lo: int, hi: int) -> int:
+    """First row in ``lo..hi`` of the time column ``ds`` (s, ascending) whose time is >= ``t``, with
+    O(log n) point reads (a live view of a long run reads a few rows, never the column)."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if float(ds[mid]) < t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
 
 
 def _checked_rows(ds: h5py.Dataset, limit: int) -> int:
@@ -494,7 +575,8 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
                 status, detail = layout.STATUS_CRASHED, f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
             else:
                 detail = f"being written: last heartbeat {since} ({age:.1f} s ago{at})"
-    rows, blob = _event_table(f, limit)
+    damage: list[str] = []
+    rows, blob = _event_table(f, limit, damage, lazy_blob=event_kinds is not None)
     events = _decode_events(rows, blob, event_kinds, traffic)
     streams = [_stream_summary(key, g, limit) for key, g in _stream_groups(f).items()]
     waiting = _pending_prompt(rows, blob) if status == layout.STATUS_RUNNING else None
@@ -520,6 +602,8 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
         instrument_identity=_instrument_identities(f, attrs, events),
         waiting_for=waiting,
         traffic=_traffic(rows, streams),
+        warnings=damage,
+        checksums=checksum_state([g[n] for g in _stream_groups(f).values() for n in _column_order(g)] + list(event_datasets(f))),
     )
 
 
@@ -616,13 +700,25 @@ def _stream_summary(key: str, g: h5py.Group, limit: int) -> StreamSummary:
     rows = min(_checked_rows(g[n], limit) for n in names)
     columns = {n: _units(g[n]) for n in names if n != layout.TIME}
     shapes = {n: tuple(int(s) for s in g[n].shape[1:]) for n in names if n != layout.TIME}
-    t0 = t1 = rate = None
-    if rows:
-        t0 = float(g[layout.TIME][0])
-        t1 = float(g[layout.TIME][rows - 1])
-        if rows > 1 and t1 > t0:
-            rate = (rows - 1) / (t1 - t0)
-    return StreamSummary(key, columns, shapes, rows, t0, t1, rate)
+    damage: list[str] = []
+    t0 = _run_time(g, 0, damage) if rows else None
+    t1 = (t0 if rows == 1 else _run_time(g, rows - 1, damage)) if rows else None
+    rate = None
+    if rows > 1 and t0 is not None and t1 is not None and t1 > t0:
+        rate = (rows - 1) / (t1 - t0)
+    return StreamSummary(key, columns, shapes, rows, t0, t1, rate, "; ".join(damage))
+
+
+def _run_time(g: h5py.Group, row: int, damage: list[str]) -> float | None:
+    """The run time (s) of ``row`` of stream group ``g``; None, and why in ``damage``, when its chunk
+    fails its checksum (any other failure: not a readable run file)."""
+    try:
+        return float(g[layout.TIME][row])
+    except OSError as exc:
+        if not is_checksum_failure(exc):
+            raise
+        damage.append(f"the run time of row {row} fails its checksum")
+        return None
 
 
 def read_heartbeat(f: h5py.File, limit: int) -> np.ndarray:
@@ -656,15 +752,62 @@ def event_row(r: np.void, message: str, data: bytes) -> EventRow:
 
 
 def _read_events(f: h5py.File, limit: int, kinds: Collection[str] | None = None) -> list[EventRow]:
-    rows, blob = _event_table(f, limit)
+    rows, blob = _event_table(f, limit, lazy_blob=kinds is not None)
     return _decode_events(rows, blob, kinds)
 
 
-def _event_table(f: h5py.File, limit: int) -> tuple[np.ndarray, bytes]:
-    """Every row of ``/events`` (:data:`layout.EVENT_DTYPE`) and the whole ``/events_blob``."""
+def _blob_note(blob_name: str, start: int, end: int, reason: str) -> str:
+    return (f"bytes {start}–{end - 1} of {blob_name}: {reason}: the event messages stored there read "
+            "as NUL characters (bench inspect --verify)")
+
+
+class _LazyBlob:
+    """``/events_blob`` read piece by piece, for a reader that decodes a few events of a long run
+    (the catalogue, a summary of steps and checks): the traffic bytes, most of the blob, are never
+    read. Pieces of a chunk failing its checksum read as zeros and are said in ``damage``."""
+
+    def __init__(self, ds: h5py.Dataset, n: int, damage: list[str] | None):
+        self.ds, self.n, self.damage = ds, n, damage
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, s: slice) -> bytes:
+        a, b = int(s.start), min(int(s.stop), self.n)
+        if b <= a:
+            return b""
+        step = int(self.ds.chunks[0]) if self.ds.chunks else b - a
+        lo = a - a % step  # read_rows starts at a chunk boundary
+        part, bad = read_rows(self.ds, lo, min(b + (-b) % step, self.n))
+        if self.damage is not None:
+            self.damage += [_blob_note(self.ds.name, x.row_start, x.row_end, x.reason) for x in bad]
+        return np.asarray(part[a - lo:b - lo], dtype=np.uint8).tobytes()
+
+
+def _event_table(f: h5py.File, limit: int, damage: list[str] | None = None, *,
+                 lazy_blob: bool = False) -> tuple[np.ndarray, bytes | _LazyBlob]:
+    """Every row of ``/events`` (:data:`layout.EVENT_DTYPE`) and ``/events_blob``: whole, or read
+    piece by piece as events are decoded (``lazy_blob``: for readers that decode a few kinds; a long
+    run's traffic is most of the blob and is then never read). Rows of a chunk failing its checksum
+    are left out, and bytes of such a blob chunk read as zeros; each is said in ``damage``."""
     ds, blob_ds = event_datasets(f)
-    rows = ds[: _checked_rows(ds, limit)]
-    blob = np.asarray(blob_ds[: _checked_rows(blob_ds, limit)], dtype=np.uint8).tobytes()
+    rows, bad = read_rows(ds, 0, _checked_rows(ds, limit))
+    notes = [f"{e.rows_text()} of {ds.name}: {e.reason}: those events are left out (bench inspect --verify)"
+             for e in excluded_rows(ds.name, bad, rows["t_s"], ds.name.rsplit("/", 1)[-1])]
+    blob: bytes | _LazyBlob
+    if lazy_blob:
+        blob = _LazyBlob(blob_ds, _checked_rows(blob_ds, limit), damage)
+    else:
+        blob_rows, bad_blob = read_rows(blob_ds, 0, _checked_rows(blob_ds, limit))
+        blob = np.asarray(blob_rows, dtype=np.uint8).tobytes()
+        notes += [_blob_note(blob_ds.name, b.row_start, b.row_end, b.reason) for b in bad_blob]
+    if bad:
+        keep = np.ones(rows.shape[0], dtype=bool)
+        for b in bad:
+            keep[b.row_start:b.row_end] = False
+        rows = rows[keep]
+    if damage is not None:
+        damage += notes
     return rows, blob
 
 
@@ -812,6 +955,28 @@ def _render_instrument_identity(summary: RunSummary, console: Console) -> None:
     console.print(t)
 
 
+CHECKSUMS_TEXT = {
+    "all": "Fletcher-32 on every stream and event chunk, not read by this summary (bench inspect --verify reads them all)",
+    "some": "Fletcher-32 on some datasets only (bench inspect --verify)",
+    "none": "none: written before checksums, the data cannot be verified",
+}
+"""What the ``checksums`` row of ``bench inspect`` says for :attr:`RunSummary.checksums`."""
+
+
+def _checksum_rows(summary: RunSummary) -> list[tuple[str, Text | str]]:
+    """Header rows: whether the file has checksums, and every stream whose first or last run time
+    failed its checksum while summarising."""
+    rows: list[tuple[str, Text | str]] = []
+    if summary.checksums:
+        rows.append(("checksums", Text(CHECKSUMS_TEXT.get(summary.checksums, summary.checksums),
+                                       style="yellow" if summary.checksums != "all" else "")))
+    for s in summary.streams:
+        if s.damage:
+            rows.append(("damaged", Text(f"stream {s.key}: {s.damage} (bench inspect --verify lists every damaged chunk)",
+                                         style="bold red")))
+    return rows
+
+
 def render_summary(summary: RunSummary, console: Console, max_events: int = 40, traffic: bool = False) -> None:
     """Print the run as rich tables: header (status ``waiting`` while a live run waits for the
     operator), instruments, streams, steps, checks (value with units, limits, outcome), the
@@ -841,6 +1006,7 @@ def render_summary(summary: RunSummary, console: Console, max_events: int = 40, 
         rows.append(("abort reason", Text(summary.abort_reason, style="red")))
     for w in summary.warnings:
         rows.append(("warning", Text(w, style="yellow")))
+    rows += _checksum_rows(summary)
     for k, v in rows:
         head.add_row(k, v if isinstance(v, Text) else Text(v))
     console.print(head)

@@ -98,7 +98,7 @@ def chunk_rows(c: Column, rate_hz: float | None) -> int:
 def _new_column(g: h5py.Group, c: Column, rate_hz: float | None) -> h5py.Dataset:
     shape = tuple(int(s) for s in c.shape)
     ds = g.create_dataset(c.name, shape=(0, *shape), maxshape=(None, *shape), dtype=c.dtype,
-                          chunks=(chunk_rows(c, rate_hz), *shape))
+                          chunks=(chunk_rows(c, rate_hz), *shape), fletcher32=True)  # checked on every read: bench/record/verify.py
     ds.attrs[layout.ATTR_UNITS] = c.units
     return ds
 
@@ -138,6 +138,7 @@ class StreamTable:
     pending_bytes: int = 0
     on_disk: int = 0  # rows written to the datasets
     appended: int = 0  # rows accepted by the recorder
+    _need: tuple[int, int, int] = (0, 0, 0)  # (on_disk, pending_rows, need_bytes) of the last need_bytes()
 
     @classmethod
     def create(cls, f: h5py.File, key: str, columns: list[Column], dtypes: dict[str, np.dtype],
@@ -211,8 +212,12 @@ class StreamTable:
         """Bytes of new chunks writing the buffered rows allocates."""
         if not self.pending_rows:
             return 0
-        return sum(new_chunks(self.chunk_rows[name], self.on_disk, self.pending_rows) * self.chunk_bytes[name]
-                   for name in self.datasets)
+        on_disk, rows, need = self._need
+        if (on_disk, rows) != (self.on_disk, self.pending_rows):  # the recorder asks at every append of any stream
+            need = sum(new_chunks(self.chunk_rows[name], self.on_disk, self.pending_rows) * self.chunk_bytes[name]
+                       for name in self.datasets)
+            self._need = (self.on_disk, self.pending_rows, need)
+        return need
 
     def write(self) -> None:
         """Extend every dataset by the buffered rows and write them (one resize and write per column)."""

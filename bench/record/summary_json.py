@@ -71,9 +71,10 @@ def summary_json(summary: RunSummary, max_events: int = 40, now_unix: float | No
                       "run_time_s": summary.heartbeat_run_time_s},
         "run_time_s": max(run_times) if run_times else None,
         "warnings": list(summary.warnings),
+        "checksums": summary.checksums,
         "instruments": summary.instruments,
         "streams": [{
-            "key": s.key, "rows": s.rows, "t_start_s": s.t_start_s, "t_end_s": s.t_end_s, "rate_hz": s.rate_hz,
+            "key": s.key, "rows": s.rows, "t_start_s": s.t_start_s, "t_end_s": s.t_end_s, "rate_hz": s.rate_hz, "damage": s.damage,
             "columns": {n: {"units": u, "shape": list(s.shapes.get(n, ()))} for n, u in s.columns.items()},
         } for s in summary.streams],
         "steps": [{

@@ -12,8 +12,9 @@ closed, because HDF5 does not support modifying attributes in SWMR mode. See ``d
 modules: :mod:`~bench.record.destination` (file name, free space before the run, exclusive
 creation), :mod:`~bench.record.skeleton` (the structure written before SWMR mode),
 :mod:`~bench.record.streams` (stream datasets and row buffers), :mod:`~bench.record.events` (the
-event log), :mod:`~bench.record.space` (room for the next flush) and :mod:`~bench.record.swmr`
-(finalising the status, abandoning a failed file).
+event log), :mod:`~bench.record.space` (room for the next flush, and the space reserve that lets
+the file be finalised on a full disk) and :mod:`~bench.record.swmr` (finalising the status,
+abandoning a failed file).
 
 Units: run times in seconds since the start of the run (``t_s``, stream ``time``), wall times in
 seconds since the Unix epoch (``wall_unix``, heartbeat), sizes in bytes.
@@ -21,6 +22,7 @@ seconds since the Unix epoch (``wall_unix``, heartbeat), sizes in bytes.
 
 from __future__ import annotations
 
+import os
 import shutil
 import time
 from contextlib import contextmanager
@@ -35,11 +37,11 @@ import numpy as np
 from bench.errors import RecorderError
 from bench.record import layout
 from bench.record.destination import SPACE_MARGIN_BYTES, check_destination, create_new_file, run_file_name
-from bench.record.events import EventLog
+from bench.record.events import BLOB_CHUNK_BYTES, EVENT_CHUNK_ROWS, EventLog
 from bench.record.layout import EVENT_DTYPE, EVENT_KINDS, FORMAT_VERSION, MODES, STATUSES_FINAL
-from bench.record.reasons import os_reason
+from bench.record.reasons import mb, os_reason
 from bench.record.skeleton import write_identity, write_skeleton
-from bench.record.space import RESERVE_BYTES, space_problem
+from bench.record.space import RESERVE_BYTES, SpaceReserve, space_problem
 from bench.record.streams import BUFFER_SPILL_BYTES, Column, StreamTable, check_name, check_stream
 from bench.record.swmr import finalise_status, keep_alive
 
@@ -50,6 +52,10 @@ __all__ = [
 
 FLUSH_SLACK_S = 1e-6
 """tick() tolerance (s) so that ten 0.1-s steps count as 1 s despite rounding."""
+FINALISE_MIN_BYTES = 64 * 1024
+"""Free space (bytes) below which the final status is not written: reopening the file read-write
+and failing to close it would leave a file HDF5 refuses to open; without it the file stays as
+closed from SWMR mode, readable with every row written (reported as crashed)."""
 
 
 class RunRecorder:
@@ -63,9 +69,11 @@ class RunRecorder:
 
     path: Path
 
-    def __init__(self, path: Path, file: h5py.File, flush_interval_s: float, wall_clock: Callable[[], float]):
+    def __init__(self, path: Path, file: h5py.File, flush_interval_s: float, wall_clock: Callable[[], float],
+                 reserve: SpaceReserve | None = None):
         """Use :meth:`create`."""
         self.path = path
+        self._reserve = reserve
         self.flush_interval_s = float(flush_interval_s)
         self._f: h5py.File | None = file
         self._wall_clock = wall_clock
@@ -118,17 +126,22 @@ class RunRecorder:
             raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s!r}")
         started = layout.as_utc(started_utc or datetime.now(timezone.utc))
         f, path = create_new_file(Path(runs_dir), started, procedure_name)
+        reserve: SpaceReserve | None = None
         try:
+            try:
+                reserve = SpaceReserve.create(path, RESERVE_BYTES)
+            except OSError as exc:
+                raise RecorderError(f"writing {path} failed: disk nearly full: no room for the {mb(RESERVE_BYTES)} "
+                                    f"kept to finalise the file ({os_reason(exc)})") from None
             write_skeleton(f, procedure_name=procedure_name, procedure_text=procedure_text, procedure_path=procedure_path,
                            config_text=config_text, config_path=config_path, mode=mode, operator=operator,
                            software_version=software_version, started=started, identity=identity)
-        except Exception as exc:  # noqa: BLE001
-            try:
-                f.close()
-            except Exception:  # noqa: BLE001 - already reporting the first failure
-                pass
+        except BaseException as exc:  # also KeyboardInterrupt: a half-made file holds nothing recorded
+            _discard_new_file(f, path, reserve)
+            if isinstance(exc, RecorderError) or not isinstance(exc, Exception):
+                raise
             raise RecorderError(f"writing {path} failed: {os_reason(exc)}") from None
-        return cls(path, f, flush_interval_s, wall_clock)
+        return cls(path, f, flush_interval_s, wall_clock, reserve)
 
     def add_instrument(self, name: str, info: dict[str, str]) -> None:
         """Record an instrument's identity (vendor, model, serial, firmware, transport, port …)
@@ -161,6 +174,7 @@ class RunRecorder:
         readable file. Events logged and rows appended before are written now."""
         self._require_setup("start")
         f = self._file()
+        self._hold_reserve()
         with self._io():
             f.flush()
             f.swmr_mode = True
@@ -261,6 +275,12 @@ class RunRecorder:
         """Bytes the next flush may allocate plus the reserve kept for finalising (bytes)."""
         return RESERVE_BYTES + self._events.need_bytes() + self._rows_need()
 
+    def reserve_bytes(self) -> int:
+        """Size (bytes) of the space reserve held for closing the file: :data:`RESERVE_BYTES` plus a
+        chunk of every dataset (what the last rows and events of one flush interval allocate)."""
+        events = EVENT_CHUNK_ROWS * layout.EVENT_DTYPE.itemsize + BLOB_CHUNK_BYTES
+        return RESERVE_BYTES + events + sum(sum(st.chunk_bytes.values()) for st in self._streams.values())
+
     # ---- closing --------------------------------------------------------------------------
     def close(self, status: str, abort_reason: str = "") -> None:
         """Flush, close the SWMR file, reopen it (non-SWMR) and write the final root attributes
@@ -270,12 +290,19 @@ class RunRecorder:
         refused flush (disk nearly full, file-size limit) the file is still finalised, as
         ``aborted`` if ``completed`` was asked; after a failed HDF5 write it cannot be (it keeps the
         data of the last successful flush and reads as crashed), and every call raises.
+
+        The space reserve is deleted first, so these writes have its room even on a disk another
+        process filled. If less than :data:`FINALISE_MIN_BYTES` is free all the same, the status
+        is not written (raises; the file reads as crashed with every row written, and a later
+        call may still finalise it).
         """
         if status not in STATUSES_FINAL:
             raise ValueError(f"status must be one of {', '.join(STATUSES_FINAL)}, got {status!r}")
         if self._state == "closed":
             return
         flush_error: RecorderError | None = None
+        if self._reserve is not None:
+            self._reserve.release()  # its blocks are the room of the writes below, even on a full disk
         if self._state == "open":
             flush_error = self._last_flush_before_close()
             self._release()
@@ -289,6 +316,7 @@ class RunRecorder:
             status = layout.STATUS_ABORTED
         if self._failure and not abort_reason:
             abort_reason = f"writing the run file failed: {self._failure}"
+        self._check_room_to_finalise(status)
         try:
             finalise_status(self.path, self._streams.values(), status, abort_reason)
         except Exception as exc:  # noqa: BLE001 - h5py raises several types
@@ -362,6 +390,8 @@ class RunRecorder:
         keep_alive(objs)
         self._broken = True
         self._f = None
+        if self._reserve is not None:
+            self._reserve.release()  # the file cannot be finalised: give the room back
 
     def _last_flush_before_close(self) -> RecorderError | None:
         """The flush of :meth:`close`: everything, or after a refused flush what still fits; the
@@ -421,6 +451,32 @@ class RunRecorder:
         """Why ``need`` more bytes might not fit in the file (free space, ``ulimit -f``), or ""."""
         return space_problem(self.path, need, self.free_bytes)
 
+    def _hold_reserve(self) -> None:
+        """Grow the space reserve to :meth:`reserve_bytes` now that the streams are known; a disk
+        that cannot give it refuses the start like a refused flush."""
+        if self._reserve is None:
+            return
+        try:
+            self._reserve.ensure(self.reserve_bytes())
+        except OSError as exc:
+            self._failure = (f"disk nearly full: no room for the {mb(self.reserve_bytes())} kept to finalise the file "
+                             f"({os_reason(exc)}); recording stopped while the file is still consistent")
+            raise RecorderError(f"writing {self.path} failed: {self._failure}") from None
+
+    def _check_room_to_finalise(self, status: str) -> None:
+        """Refuse to reopen the file for its final status when the disk has less than
+        :data:`FINALISE_MIN_BYTES` free (the reserve was taken by another process): failing to
+        close it then would leave a file HDF5 refuses to open."""
+        try:
+            free = self.free_bytes(self.path.parent)
+        except OSError:
+            return
+        if free < FINALISE_MIN_BYTES:
+            raise RecorderError(
+                f"writing {self.path} failed: disk full ({mb(free)} free): status {status!r} not written; the file keeps "
+                "every row written and reads as crashed"
+            )
+
     def _check_space(self) -> None:
         """Refuse a flush that might not fit on the disk or under the file-size limit (``ulimit -f``).
 
@@ -433,3 +489,18 @@ class RunRecorder:
         if problem:
             self._failure = f"{problem}; recording stopped while the file is still consistent"
             raise RecorderError(f"writing {self.path} failed: {self._failure}")
+
+
+def _discard_new_file(f: h5py.File, path: Path, reserve: SpaceReserve | None) -> None:
+    """Close and delete a run file whose creation failed or was interrupted (it holds nothing
+    recorded), and its reserve."""
+    try:
+        f.close()
+    except Exception:  # noqa: BLE001 - already reporting the first failure
+        pass
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+    if reserve is not None:
+        reserve.release()

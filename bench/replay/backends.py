@@ -10,11 +10,14 @@ backend hands requests to a simulator instead.
 * :class:`ReplaySerial` - a :class:`bench.sim.registry.SerialDevice` for ``sim://`` URLs (line
   protocols, the board's binary frames); :class:`AcsBoardReplay` adds the data stream re-encoded
   from the recorded ``acs_board`` rows at the run times they were sent.
-* :class:`ModbusReplayServer` - Modbus TCP on 127.0.0.1 (any free port) answering recorded ADUs
-  with the request's transaction id; :class:`ModbusRtuReplay` - the same controller on Modbus
-  RTU, a ``sim://`` serial far end (``modbus-rtu://sim://...``).
-* :class:`CanReplayNode` - a python-can virtual-bus participant answering SDO requests and SYNC
-  with the recorded frames.
+* :class:`ModbusTcpReplay` - Modbus TCP ADUs on an in-process stream (``modbus-tcp+stream://sim://...``,
+  the default) answering recorded ADUs with the request's transaction id, in the caller's thread;
+  :class:`ModbusReplayServer` - the same on a real Modbus TCP server on 127.0.0.1 (any free port;
+  ``BENCH_DRYRUN_TRANSPORT=socket``); :class:`ModbusRtuReplay` - the same controller on Modbus RTU,
+  a ``sim://`` serial far end (``modbus-rtu+stream://sim://...``, or ``modbus-rtu://`` on the socket path).
+* :class:`CanReplayNode` - a participant on a synchronous in-process CAN bus (answering in the
+  sender's thread; the default) or on a python-can virtual bus (its own thread), answering SDO
+  requests and SYNC with the recorded frames.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import numpy as np
 from bench.replay.recording import Exchange
 from bench.sim.watlow_f4_rtu import crc16_modbus
 from drivers import acs_protocol as proto
+from drivers.can_transport import SyncBus
 
 Exhausted = Callable[[str], None]
 
@@ -222,6 +226,36 @@ class ModbusRtuReplay(ReplaySerial):
 
 
 # ---- Modbus TCP ---------------------------------------------------------------------------------
+DEVICE_FAILURE = 4
+"""Modbus exception a replayed controller answers once the recording has no more exchanges."""
+
+
+def tcp_replies(req: bytes, ex: Exchange | None) -> bytes:
+    """What a replayed Modbus TCP controller sends for request ADU ``req``: the recorded reply ADUs of
+    exchange ``ex`` with the request's transaction id, or exception 4 (device failure) when the
+    recording has none (out of exchanges, or a request recorded without answer)."""
+    if ex is None or not ex.replies:
+        fc = req[7] if len(req) > 7 else 3
+        unit = req[6] if len(req) > 6 else 1
+        return req[:4] + struct.pack(">HBBB", 3, unit, (fc | 0x80) & 0xFF, DEVICE_FAILURE)
+    return b"".join(req[:2] + raw[2:] for _t, _n, raw in ex.replies)
+
+
+class ModbusTcpReplay(ReplaySerial):
+    """Modbus TCP far end of the chamber controller on an in-process stream: one write of the driver
+    is one request ADU, answered at once (:func:`tcp_replies`). Before :meth:`go_live` requests go to
+    the prelude simulator's stream."""
+
+    clock_delays = False
+
+    def receive(self, data: bytes) -> None:
+        if not self.live and self.prelude is not None:
+            self.prelude.receive(data)
+            return
+        with self._lock:
+            self._out += tcp_replies(bytes(data), self.next_exchange())
+
+
 class ModbusReplayServer(Backend):
     """Modbus TCP server on 127.0.0.1 answering each request ADU with the recorded reply ADU (its
     transaction id set to the request's). Out of recorded exchanges: exception 4 (device failure).
@@ -272,13 +306,7 @@ class ModbusReplayServer(Backend):
                         return
                     conn.sendall(h + b)
                     continue
-                ex = self.next_exchange()
-                if ex is None or not ex.replies:
-                    fc = req[7] if len(req) > 7 else 3
-                    conn.sendall(req[:4] + struct.pack(">HBBB", 3, req[6], (fc | 0x80) & 0xFF, 4))
-                    continue
-                out = b"".join(req[:2] + raw[2:] for _t, _n, raw in ex.replies)
-                conn.sendall(out)
+                conn.sendall(tcp_replies(req, self.next_exchange()))
         except OSError:
             return
         finally:
@@ -313,19 +341,27 @@ def _recv_exact(conn: socket.socket, n: int) -> bytes | None:
 
 # ---- CAN ------------------------------------------------------------------------------------------
 class CanReplayNode(Backend):
-    """A participant on a python-can virtual channel answering the driver's frames (SDO requests,
-    SYNC) with the recorded reply frames (recorded as 2-byte big-endian CAN id + data). Out of
-    recorded exchanges: SDO abort 0x08000000 (general error) to an SDO request, nothing to SYNC."""
+    """A participant on a CAN channel answering the driver's frames (SDO requests, SYNC) with the
+    recorded reply frames (recorded as 2-byte big-endian CAN id + data). Out of recorded exchanges:
+    SDO abort 0x08000000 (general error) to an SDO request, nothing to SYNC. ``sync``: the channel
+    is a :class:`~drivers.can_transport.SyncBus` one (answers in the sender's thread), else a
+    python-can virtual channel served by a thread of its own."""
 
-    def __init__(self, label, exchanges, on_exhausted, channel: str):
+    def __init__(self, label, exchanges, on_exhausted, channel: str, *, sync: bool = False):
         super().__init__(label, exchanges, on_exhausted)
         self.channel = channel
+        self.sync = sync
         self._bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._stop = False
 
     def go_live(self) -> None:
         super().go_live()
+        if self.sync:
+            bus = SyncBus(self.channel)
+            bus.add_listener(lambda msg: self._answer(bus, msg))
+            self._bus = bus
+            return
         self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
         self._thread = threading.Thread(target=self._serve, name=f"replay-can-{self.label}", daemon=True)
         self._thread.start()
@@ -334,17 +370,22 @@ class CanReplayNode(Backend):
         bus = self._bus
         while not self._stop:
             msg = bus.recv(0.05)
-            if msg is None or msg.is_error_frame:
-                continue
-            ex = self.next_exchange()
-            if ex is None:
-                if 0x600 <= msg.arbitration_id <= 0x67F and len(msg.data) >= 4:
-                    node = msg.arbitration_id - 0x600
-                    data = bytes([0x80, msg.data[1], msg.data[2], msg.data[3]]) + (0x08000000).to_bytes(4, "little")
-                    bus.send(can.Message(arbitration_id=0x580 + node, data=data, is_extended_id=False))
-                continue
-            for _t, _n, raw in ex.replies:
-                bus.send(can.Message(arbitration_id=int.from_bytes(raw[:2], "big"), data=raw[2:], is_extended_id=False))
+            if msg is not None:
+                self._answer(bus, msg)
+
+    def _answer(self, bus: can.BusABC, msg: can.Message) -> None:
+        """Send the recorded replies to the driver's frame ``msg``."""
+        if msg.is_error_frame:
+            return
+        ex = self.next_exchange()
+        if ex is None:
+            if 0x600 <= msg.arbitration_id <= 0x67F and len(msg.data) >= 4:
+                node = msg.arbitration_id - 0x600
+                data = bytes([0x80, msg.data[1], msg.data[2], msg.data[3]]) + (0x08000000).to_bytes(4, "little")
+                bus.send(can.Message(arbitration_id=0x580 + node, data=data, is_extended_id=False))
+            return
+        for _t, _n, raw in ex.replies:
+            bus.send(can.Message(arbitration_id=int.from_bytes(raw[:2], "big"), data=raw[2:], is_extended_id=False))
 
     def close(self) -> None:
         self._stop = True

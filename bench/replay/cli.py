@@ -1,4 +1,4 @@
-"""``bench replay RUN.h5 [--procedure P.yaml] [--runs-dir DIR]``.
+"""``bench replay RUN.h5 [--procedure P.yaml] [--runs-dir DIR] [--no-board-check]``.
 
 Wiring in ``bench/cli.py``: ``add_replay_parser(sub)`` in ``build_parser`` and
 ``if args.command == "replay": return cmd_replay(args, console)`` in ``main``.
@@ -26,7 +26,9 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
         "replay", help="re-execute a recorded run against its recorded instrument answers and compare",
         description="Re-execute a recorded run (dry-run or hardware) with the same drivers against backends that "
                     "answer from the recording, and compare commands, step outcomes, checks and streams "
-                    "(docs/replay.md). The replay is recorded too, to RUNS_DIR.",
+                    "(docs/replay.md); a dry-run's board samples are checked against a re-simulation. The texts "
+                    "in the run file are read from a private temporary directory, never from the paths they "
+                    "were recorded at. The replay is recorded too, to RUNS_DIR.",
         epilog=epilog("bench replay runs/20261123T101500Z_startup_profile.h5",
                       "bench replay RUN.h5 --procedure procedures/startup_profile.yaml --runs-dir /tmp/replays",
                       ok="the replay matches the recording",
@@ -36,6 +38,9 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
     rp.add_argument("--procedure", type=Path, default=None,
                     help="replay this procedure instead of the one stored in the run file (default: the stored one)")
     rp.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where the replay's own run file goes (default: runs/)")
+    rp.add_argument("--no-board-check", action="store_true",
+                    help="do not re-simulate a dry-run's board samples to check the recorded ones (about twice as fast; "
+                         "a board value changed in the file then goes unnoticed: the replay sends the board's recorded rows)")
     return rp
 
 
@@ -43,7 +48,7 @@ def cmd_replay(args: argparse.Namespace, console: Console) -> int:
     import logging
 
     from bench.record import check_destination
-    from bench.replay.run import replay
+    from bench.replay.recording import load_recording
 
     logging.getLogger("canopen").setLevel(logging.CRITICAL)  # SDO aborts become typed errors in the report
 
@@ -51,6 +56,9 @@ def cmd_replay(args: argparse.Namespace, console: Console) -> int:
     # the replay, never a failed write mid-replay (exit 1 means "diverged"); the replay's file is
     # about the size of the recording
     check_destination(args.runs_dir, args.run_file.stat().st_size if args.run_file.is_file() else 0)
-    result = replay(args.run_file, args.procedure, args.runs_dir)
+    rec = load_recording(args.run_file)  # a damaged file is refused before the runner and drivers are imported
+    from bench.replay.run import replay
+
+    result = replay(rec, args.procedure, args.runs_dir, check_board=not getattr(args, "no_board_check", False))
     console.print(result.report(), markup=False, highlight=False, soft_wrap=True)
     return EXIT_OK if result.ok else EXIT_FAILED

@@ -9,11 +9,13 @@ import json
 import math
 import re
 from dataclasses import dataclass
+from typing import Collection
 
 import numpy as np
 
+from bench.errors import InputError
 from bench.record import layout
-from bench.record.reader import RunSummary
+from bench.record.reader import RunSummary, open_run_file
 
 TIME_TOL_S = 1e-6
 REL_TOL = 1e-9
@@ -32,16 +34,28 @@ class Divergence:
     got: str
 
     def render(self) -> str:
-        where = f"step {self.step + 1} ({self.step_name})" if self.step >= 0 else "outside steps"
-        inst = f", instrument {self.instrument}" if self.instrument else ""
-        return (f"first divergence at run time {self.t_s:.3f} s, {where}{inst}: {self.what}\n"
-                f"  expected: {self.expected}\n  got:      {self.got}")
+        """Three lines; texts from the run file with their control characters escaped (a crafted
+        message cannot forge lines of the report)."""
+        where = f"step {self.step + 1} ({_clean(self.step_name)})" if self.step >= 0 else "outside steps"
+        inst = f", instrument {_clean(self.instrument)}" if self.instrument else ""
+        return (f"first divergence at run time {self.t_s:.3f} s, {where}{inst}: {_clean(self.what)}\n"
+                f"  expected: {_clean(self.expected)}\n  got:      {_clean(self.got)}")
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def _clean(text: str) -> str:
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
 def close(a: float, b: float) -> bool:
     if a is None or b is None:
         return a is b
-    a, b = float(a), float(b)
+    try:
+        a, b = float(a), float(b)
+    except (TypeError, ValueError, OverflowError):  # not numbers (a crafted check event): equal or not
+        return a == b
     if math.isnan(a) or math.isnan(b):
         return math.isnan(a) and math.isnan(b)
     return abs(a - b) <= REL_TOL * max(abs(a), abs(b)) + ABS_TOL
@@ -120,9 +134,10 @@ def compare(src: RunSummary, rep: RunSummary, drivers: dict[str, str], *, timed:
         for e in summary.events:
             if e.kind == "check":
                 try:
-                    d[e.source] = (e.t_s, e.step, json.loads(e.data.decode("utf-8")))
-                except (UnicodeDecodeError, json.JSONDecodeError):
-                    d[e.source] = (e.t_s, e.step, {})
+                    info = json.loads(e.data.decode("utf-8"))
+                except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+                    info = {}
+                d[e.source] = (e.t_s, e.step, info if isinstance(info, dict) else {})
         return d
 
     ca, cb = checks(src), checks(rep)
@@ -147,42 +162,74 @@ def compare(src: RunSummary, rep: RunSummary, drivers: dict[str, str], *, timed:
     return out
 
 
-def compare_streams(src_path, rep_path, src: RunSummary, rep: RunSummary, prefix_only: bool, timed: bool = True) -> list[Divergence]:
-    """Rows of every recorded stream: same count (a prefix for crashed sources) and values within
-    the tolerance (NaN equals NaN). Read in blocks so long recordings stay cheap in memory.
-    ``timed`` False (a wall-clock source): the ``time`` column, a wall-clock artefact, is not compared."""
-    import h5py
-
+def compare_streams(src_path, rep_path, src: RunSummary, rep: RunSummary, prefix_only: bool, timed: bool = True, *,
+                    keys: Collection[str] | None = None, got: str = "replay") -> list[Divergence]:
+    """Rows of every recorded stream (only ``keys`` when given): same count (a prefix for crashed
+    sources) and values within the tolerance (NaN equals NaN); per stream, the first column that
+    differs, named with its first differing row, run time and values. Read in blocks so long
+    recordings stay cheap in memory. ``timed`` False (a wall-clock source): the ``time`` column, a
+    wall-clock artefact, is not compared. ``got``: what ``rep_path`` is, in messages (``replay``,
+    ``re-simulation``). Both files are opened as every reader opens them (bounded on a damaged
+    file); :class:`InputError` naming the source when its data cannot be read."""
     out = []
     keys_b = {s.key: s for s in rep.streams}
+    todo = []
     for s in src.streams:
+        if keys is not None and s.key not in keys:
+            continue
         r = keys_b.get(s.key)
         instrument = layout.split_stream_key(s.key)[0]
         if r is None:
-            out.append(Divergence(s.t_start_s or 0.0, f"stream {s.key}", -1, "", instrument, f"{s.rows} rows", "(no such stream)"))
+            out.append(Divergence(s.t_start_s or 0.0, f"stream {s.key}", -1, "", instrument, f"{s.rows} rows", f"(no such stream in the {got})"))
             continue
         rows = s.rows
         if prefix_only and not timed:
             rows = min(s.rows, r.rows)  # a wall-clock source cut by a crash: where the cut falls is not reproducible
         elif (s.rows != r.rows and not prefix_only) or r.rows < s.rows:
-            out.append(Divergence(s.t_end_s or 0.0, f"stream {s.key}", -1, "", instrument, f"{s.rows} rows", f"{r.rows} rows"))
+            out.append(Divergence(s.t_end_s or 0.0, f"stream {s.key}", -1, "", instrument, f"{s.rows} rows", f"{r.rows} rows ({got})"))
             continue
-        with h5py.File(src_path, "r", swmr=True, locking=False) as fa, h5py.File(rep_path, "r", locking=False) as fb:
-            ga, gb = fa[layout.stream_path(s.key)], fb[layout.stream_path(s.key)]
-            block = 1 << 18
-            for name in ga:
-                if name == layout.TIME and not timed:
-                    continue
-                for i in range(0, rows, block):
-                    xa = np.asarray(ga[name][i:min(i + block, rows)], dtype=float)
-                    xb = np.asarray(gb[name][i:min(i + block, rows)], dtype=float)
-                    if not np.allclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True):
-                        bad = np.nonzero(~np.isclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True).reshape(len(xa), -1).all(axis=1))[0][0]
-                        t = float(ga[layout.TIME][i + bad])
-                        out.append(Divergence(t, f"stream {s.key} column {name} row {i + bad}", -1, "", instrument,
-                                              repr(ga[name][i + bad]), repr(gb[name][i + bad])))
-                        break
-                else:
-                    continue
-                break
+        todo.append((s.key, instrument, rows))
+    if not todo:
+        return out
+    with open_run_file(src_path) as fa, open_run_file(rep_path) as fb:
+        for key, instrument, rows in todo:
+            d = _first_difference(src_path, fa[layout.stream_path(key)], fb[layout.stream_path(key)], key, rows, timed, got)
+            if d is not None:
+                t, column, row, a, b = d
+                out.append(Divergence(t, f"stream {key} column {column}", -1, "", instrument,
+                                      f"{_value(a)} (recorded, row {row} at run time {t:.6f} s)", f"{_value(b)} ({got})"))
     return out
+
+
+def _first_difference(src_path, ga, gb, key: str, rows: int, timed: bool, got: str):
+    """``(t_s, column, row, recorded value, other value)`` of the first row (over the columns in
+    order, the first column that differs) where the stream groups ``ga`` (source) and ``gb``
+    differ beyond the tolerance; None when they agree."""
+    block = 1 << 18
+    for name in ga:
+        if name == layout.TIME and not timed:
+            continue
+        if name not in gb:
+            return (float(ga[layout.TIME][0]) if rows else 0.0), name, 0, "(a column)", f"(no such column in the {got})"
+        for i in range(0, rows, block):
+            j = min(i + block, rows)
+            try:
+                xa = np.asarray(ga[name][i:j], dtype=float)
+            except Exception as exc:  # noqa: BLE001 - a damaged chunk (checksum) or an unreadable dtype
+                raise InputError(f"{src_path}: cannot be replayed: stream {key} column {name} rows {i}..{j - 1} cannot be read "
+                                 f"({' '.join(str(exc).split())[:200]})") from None
+            xb = np.asarray(gb[name][i:j], dtype=float)
+            if xa.shape != xb.shape:
+                return float(ga[layout.TIME][i]), name, i, f"shape {xa.shape[1:]}", f"shape {xb.shape[1:]}"
+            if not np.allclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True):
+                bad = int(np.nonzero(~np.isclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True).reshape(len(xa), -1).all(axis=1))[0][0])
+                return float(ga[layout.TIME][i + bad]), name, i + bad, xa[bad], xb[bad]
+    return None
+
+
+def _value(v) -> str:
+    """A stream value as a message shows it: plain numbers (``35.12``, ``[0.1, -0.2, 9.81]``)."""
+    if isinstance(v, str):
+        return v
+    a = np.asarray(v, dtype=float)
+    return f"{a.item():.10g}" if a.ndim == 0 else "[" + ", ".join(f"{x:.10g}" for x in a.ravel()) + "]"

@@ -4,6 +4,11 @@ at the far end of every link, on one virtual clock.
 When the recording lacks the traffic of opening the instruments (files written before the
 ``lab_open`` marker existed), the simulators of the stored config answer that prelude; the
 backends go live (answer from the recording) once every driver is open.
+
+The transports are the dry-run's (``BENCH_DRYRUN_TRANSPORT``, :func:`bench.lab.dryrun_transport`):
+in-process by default (the controller's ADUs on a ``sim://`` stream, the drives' frames on a
+synchronous in-process CAN bus, all answered in the caller's thread), or a Modbus TCP server and a
+python-can virtual bus with ``socket``. The recorded bytes are the same on both.
 """
 
 from __future__ import annotations
@@ -16,12 +21,14 @@ from typing import Any, Callable
 from bench.clock import VirtualClock
 from bench.config import InstrumentConfig, LabConfig
 from bench.errors import InputError
-from bench.lab import DRIVER_CLASSES, Lab, driver_kwargs
-from bench.replay.backends import AcsBoardReplay, Backend, CanReplayNode, ModbusReplayServer, ModbusRtuReplay, ReplaySerial
+from bench.lab import DRIVER_CLASSES, Lab, driver_kwargs, dryrun_transport
+from bench.replay.backends import (AcsBoardReplay, Backend, CanReplayNode, ModbusReplayServer, ModbusRtuReplay, ModbusTcpReplay,
+                                   ReplaySerial)
 from bench.replay.recording import Recording
 from bench.sim import registry
 from bench.sim.factory import SimInstrument, build_devices
 from bench.sim.world import World
+from drivers.can_transport import parse_can_url
 
 _ids = itertools.count()
 
@@ -79,10 +86,12 @@ def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: s
     drivers = {n: config.instruments[n].driver for n in names}
     links = rec.links(drivers)
     world = World(config.world)
+    transport = dryrun_transport()
+    inprocess = transport == "inprocess"
     prelude: dict[str, SimInstrument] = {}
     if not rec.prelude_recorded:
         try:
-            prelude = build_devices(config, clock, names, world=World(config.world))
+            prelude = build_devices(config, clock, names, world=World(config.world), transport=transport)
         except ValueError as exc:
             raise InputError(f"{rec.path}: the recording lacks the traffic of opening the instruments and {exc}") from None
     tag = f"replay{os.getpid()}-{next(_ids)}"
@@ -108,7 +117,11 @@ def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: s
             elif inst.driver in ("stepper_bench", "thermocouple_reader"):
                 ports[name] = serial(name, "", "")
             elif inst.driver == "tvac" and controller_on_rtu(inst, mode):
-                ports[name] = "modbus-rtu://" + serial(name, "controller", "", ModbusRtuReplay)
+                scheme = "modbus-rtu+stream://" if inprocess else "modbus-rtu://"
+                ports[name] = scheme + serial(name, "controller", "", ModbusRtuReplay)
+                kwargs[name]["gauge_url"] = serial(name, "gauge", "gauge")
+            elif inst.driver == "tvac" and inprocess:
+                ports[name] = "modbus-tcp+stream://" + serial(name, "controller", "", ModbusTcpReplay)
                 kwargs[name]["gauge_url"] = serial(name, "gauge", "gauge")
             elif inst.driver == "tvac":
                 addr = None
@@ -122,13 +135,10 @@ def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: s
                 kwargs[name]["gauge_url"] = serial(name, "gauge", "gauge")
             elif inst.driver == "rate_table":
                 node = inst.sim.node_id if inst.sim is not None else 1
-                if name in prelude:
-                    channel = prelude[name].url.split("can://virtual/", 1)[1].split("?", 1)[0]
-                else:
-                    channel = f"{tag}-{name}"
-                b = CanReplayNode(name, links.get((name, ""), []), on_exhausted, channel)
+                channel = parse_can_url(prelude[name].url).channel if name in prelude else f"{tag}-{name}"
+                b = CanReplayNode(name, links.get((name, ""), []), on_exhausted, channel, sync=inprocess)
                 backends[(name, "")] = b
-                ports[name] = f"can://virtual/{channel}?node={node}"
+                ports[name] = f"can://{'sync' if inprocess else 'virtual'}/{channel}?node={node}"
                 kwargs[name]["clock"] = clock
         instruments: dict[str, Any] = {}
         lab = Lab(clock, mode, instruments, ports, {}, {n: config.instruments[n].poll_interval_s for n in names},

@@ -9,11 +9,13 @@ from pathlib import Path
 
 from bench import __version__
 from bench.config import load_config
+from bench.errors import InputError, InputErrors
 from bench.procedure import load_procedure
-from bench.procedure.loader import parse_procedure
 from bench.record import RunRecorder, layout, read_run_summary
 from bench.replay.compare import Divergence, compare, compare_streams
-from bench.replay.recording import load_recording, materialise_config, new_workdir, param_overrides
+from bench.replay.recording import Recording, check_plain_name, config_file, load_recording, param_overrides, procedure_file
+from bench.replay.resim import board_streams, resimulate, why_not
+from bench.replay.workspace import Workspace, shown
 from bench.runner import Runner
 from bench.runner.operator import Operator
 
@@ -78,29 +80,79 @@ class ReplayResult:
         return "\n".join(lines)
 
 
-def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = Path("runs")) -> ReplayResult:
-    """Replay ``run_file``; raises :class:`InputError` for a file that cannot be replayed."""
-    rec = load_recording(Path(run_file))
+def replay(run_file: Path | Recording, procedure_path: Path | None = None, runs_dir: Path = Path("runs"), *,
+           check_board: bool = True) -> ReplayResult:
+    """Replay ``run_file`` (or its :class:`Recording`, already read); raises :class:`InputError` for a
+    file that cannot be replayed.
+    ``check_board``: check a dry-run's recorded board samples against a re-simulation
+    (:mod:`bench.replay.resim`; about doubles the time of a replay of a dry-run with the board).
+
+    The texts in the run file (procedure, sub-procedures, vibration profiles, config) and the paths
+    they were recorded at are data: they are written into a private temporary directory and read
+    from there (:mod:`bench.replay.workspace`); nothing outside it and ``runs_dir`` is written, and
+    nothing outside it, ``procedure_path`` and the project's ``procedures/``/``configs/`` is read."""
+    rec = run_file if isinstance(run_file, Recording) else load_recording(Path(run_file))
+    with Workspace(rec.path) as ws:
+        return _replay(rec, ws, procedure_path, runs_dir, check_board)
+
+
+CONFIG_NOT_FOUND_HINT = ("; a replay reads the config and the sensor models and calibration files it read from the run "
+                         f"file ('{layout.EVENT_CONFIG_SOURCES}' event)")
+OLD_CONFIG_NOT_FOUND_HINT = ("; run file recorded before bench kept the files a config names: a replay reads them from the "
+                             "project's configs/ only, under the name the config gives (copy the file there, or record the run again)")
+
+
+def _load(ws: Workspace, what: str, load, config_hint: str = CONFIG_NOT_FOUND_HINT):
+    """``load()`` of a mirrored text; its errors located in the run file, with a hint for a file
+    the run file does not hold (``config_hint`` for the config's files)."""
+    try:
+        return load()
+    except InputError as exc:
+        err = ws.relocate(exc)
+        if "not found" in err.one_line():
+            hint = ("; a replay reads the procedure, its sub-procedures and vibration profiles from the run file (give "
+                    "--procedure FILE to replay a procedure from files)" if what == "procedure" else config_hint)
+            errs = err.errors if isinstance(err, InputErrors) else [err]
+            errs = [InputError(e.message + hint, e.location, e.field) if "not found" in e.message else e for e in errs]
+            err = InputErrors(errs) if isinstance(err, InputErrors) else errs[0]
+        raise err from None
+
+
+def _replay(rec, ws: Workspace, procedure_path: Path | None, runs_dir: Path, check_board: bool) -> ReplayResult:
     src = rec.summary
-    with new_workdir() as wd:
-        config = load_config(materialise_config(rec, Path(wd)))
+    config = _load(ws, "config", lambda: load_config(config_file(rec, ws)),
+                   CONFIG_NOT_FOUND_HINT if rec.config_sources is not None else OLD_CONFIG_NOT_FOUND_HINT)
+    for name in config.instruments:
+        check_plain_name(name, rec.path, f"{layout.absolute(layout.CONFIG_TEXT)}: instruments:")
     kinds, limits = config.kinds(), config.limits()
-    stored_path = str(src.attrs.get(layout.ATTR_PROCEDURE_PATH, "procedure.yaml"))
-    defaults = parse_procedure(src.procedure_text, stored_path, {}, kinds, limits).parameters
+    stored_file = procedure_file(rec, ws)
+    notes = []
+    try:
+        defaults = _load(ws, "procedure", lambda: load_procedure(stored_file, {}, kinds, limits)).parameters
+        overrides = param_overrides(rec, defaults)
+        stored = _load(ws, "procedure", lambda: load_procedure(stored_file, overrides, kinds, limits))
+    except InputError as exc:
+        if procedure_path is None:
+            raise
+        # the stored procedure does not load from the run file alone (a file it names is not stored):
+        # --procedure is replayed with every recorded parameter it has
+        notes.append(f"note: the stored procedure does not load from the run file ({exc.one_line()}); "
+                     "--procedure gets every recorded parameter it has")
+        stored, overrides = None, param_overrides(rec, {})
     if procedure_path is None:
-        procedure = parse_procedure(src.procedure_text, stored_path, param_overrides(rec, defaults), kinds, limits)
-        text, ppath = src.procedure_text, stored_path
+        procedure = stored
+        text, ppath = src.procedure_text, rec.procedure_path
     else:
         own = load_procedure(procedure_path, {}, kinds, limits).parameters
-        overrides = {k: v for k, v in param_overrides(rec, defaults).items() if k in own}
-        procedure = load_procedure(procedure_path, overrides, kinds, limits)
+        procedure = load_procedure(procedure_path, {k: v for k, v in overrides.items() if k in own}, kinds, limits)
         text, ppath = procedure.text, str(procedure_path)
-    notes = []
+    used = {ws.recorded(p): t for p, t in procedure.sources.items()}
     for p, t in rec.sources.items():
-        if procedure.sources.get(p, t) != t:
-            notes.append(f"note: called procedure {p} differs from the text recorded in the run file")
+        if used.get(p, t) != t:
+            notes.append(f"note: called file {shown(p)} differs from the text recorded in the run file")
     drivers = {n: config.instruments[n].driver for n in procedure.instruments if n in config.instruments}
     mode = rec.mode if rec.mode in (layout.MODE_SIM, layout.MODE_HARDWARE) else layout.MODE_SIM
+    _check_board_streams(rec, config)
 
     from bench.replay.lab import open_replay_lab
 
@@ -131,6 +183,9 @@ def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = 
         rl = open_replay_lab(config, procedure.instruments, rec, mode, traffic, exhausted)
     except BaseException as exc:
         recorder.close(layout.STATUS_ABORTED, f"instruments could not be opened: {exc}")
+        if isinstance(exc, (ValueError, TypeError, KeyError, IndexError)):  # recorded data the backends cannot take
+            raise InputError(f"{rec.path}: cannot be replayed: the recording does not make instrument answers "
+                             f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
         raise
     lab_box.append(rl)
     if rec.prelude_recorded:
@@ -162,6 +217,48 @@ def replay(run_file: Path, procedure_path: Path | None = None, runs_dir: Path = 
         notes.append(f"note: the source has no end (status {rec.status}); compared up to its last event at {rec.end_t_s:.1f} s")
     divs = compare(src, rep, drivers, timed=rec.clock == "virtual", prefix_only=crashed, skip_prelude=False)
     divs += compare_streams(rec.path, recorder.path, src, rep, crashed, timed=rec.clock == "virtual")
+    if check_board:  # a fresh copy of the stored procedure: the replay's runner has been through the other
+        fresh = (lambda: _load(ws, "procedure", lambda: load_procedure(stored_file, overrides, kinds, limits))) if stored is not None else None
+        divs += _board_check(rec, fresh, config, ws, crashed, notes)
     divs.sort(key=lambda d: (d.t_s, 0 if d.what == "command" else 1))
     commands = sum(1 for e in rep.events if e.kind == "command")
     return ReplayResult(rec.path, recorder.path, divs, run_time, wall, status, reason, commands, notes)
+
+
+def _check_board_streams(rec: Recording, config) -> None:
+    """The recorded board streams the replay re-encodes into frames have the board's columns, each
+    of its row shape (:data:`bench.runner.ingest.ACS_COLUMNS`); :class:`InputError` otherwise."""
+    from bench.runner.ingest import ACS_COLUMNS
+
+    streams = {s.key: s for s in rec.summary.streams}
+    for key in board_streams(rec, config):
+        have = streams[key].shapes
+        for c in ACS_COLUMNS:
+            if have.get(c.name) != tuple(c.shape or ()):
+                got = "missing" if c.name not in have else f"of row shape {have[c.name]}"
+                raise InputError(f"{rec.path}: cannot be replayed: column {c.name} of board stream {layout.absolute(layout.stream_path(key))} "
+                                 f"is {got}, expected row shape {tuple(c.shape or ())}")
+
+
+def _board_check(rec, stored, config, ws: Workspace, crashed: bool, notes: list[str]) -> list[Divergence]:
+    """The recorded board streams against a re-simulation of the dry-run (:mod:`bench.replay.resim`):
+    the replay feeds the board from those rows, so only an independent run tells a changed value.
+    ``stored``: makes the stored procedure (None when it does not load from the run file)."""
+    keys = board_streams(rec, config)
+    reason = why_not(rec, keys) or ("" if stored is not None else "the stored procedure does not load from the run file")
+    if not keys:
+        return []
+    if reason:
+        notes.append(f"note: the board's samples ({', '.join(keys)}) are what the replay sends, not checked against a reference: {reason}")
+        return []
+    wall0 = time.monotonic()
+    try:
+        path = _load(ws, "config", lambda: resimulate(stored(), config, rec, ws.root / "resim"))
+    except Exception as exc:  # noqa: BLE001 - the replay itself is done: a re-simulation that cannot run is reported, not raised
+        what = exc.one_line() if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+        notes.append(f"note: the board's samples ({', '.join(keys)}) were not re-simulated: {what}")
+        return []
+    divs = compare_streams(rec.path, path, rec.summary, read_run_summary(path), crashed, keys=keys, got="re-simulated dry-run")
+    notes.append(f"board samples ({', '.join(keys)}) checked against a re-simulation of the dry-run "
+                 f"({time.monotonic() - wall0:.2f} s wall): {'differ' if divs else 'the same'}")
+    return divs

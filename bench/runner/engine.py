@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
-from bench.errors import BenchError, DeviceFault, InstrumentError, RecorderError
+from bench.errors import BenchError, InstrumentError, RecorderError
 from bench.lab import Lab
 from bench.procedure import Procedure, Step
 from bench.record import RunRecorder
@@ -30,6 +30,7 @@ from bench.runner.ingest import StreamIngest
 from bench.runner.instruments import Polled, Streaming, link_baudrate
 from bench.runner.monitor import InterlockTrip, LabMonitor, describe
 from bench.runner.operator import Operator
+from bench.runner.safe_state import SafeStatePhase
 from bench.runner.steps import StepAbort
 from bench.runner.windows import Windows
 
@@ -137,6 +138,8 @@ class Runner:
         self.notices: list[str] = []
         """Messages from signal handlers, printed by the main loop (a handler must not render: it
         may interrupt the terminal library in the middle of its own work)."""
+        self.operator_events: list[tuple[str, str, str]] = []
+        """Operator actions taken elsewhere (:meth:`operator_event`), recorded by the runner's thread."""
         self.handlers: dict[str, Callable[["Runner", Step], tuple[str, str]]] = dict(step_handlers.HANDLERS)
 
     # ---- abort and pause ----------------------------------------------------------------------
@@ -150,6 +153,13 @@ class Runner:
         counting; polled instruments, streams and interlocks stay under watch."""
         self.paused = not self.paused
 
+    def operator_event(self, action: str, origin: str, message: str = "") -> None:
+        """Record an operator action taken from another thread (the web station: ``action`` ``pause``,
+        ``resume``, ``stop``; ``origin`` e.g. ``web 127.0.0.1``) as an event ``operator`` (source the
+        origin, message JSON ``action``, ``origin``, ``message``). Only queued here: the runner's own
+        thread writes it at its next check point, as h5py writes must stay on that thread."""
+        self.operator_events.append((action, origin, message))
+
     def check_abort(self) -> None:
         """Raise :class:`AbortRequested` if an abort was asked for (prints pending notices first)."""
         self.flush_notices()
@@ -160,6 +170,9 @@ class Runner:
         """Print the messages signal handlers left (main thread only)."""
         while self.notices:
             self.progress.message(self.notices.pop(0))
+        while self.operator_events:
+            action, origin, message = self.operator_events.pop(0)
+            self._event("operator", origin, json.dumps({"action": action, "origin": origin, "message": message}), step=self.current_step)
 
     # ---- run --------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -232,41 +245,30 @@ class Runner:
             self.outcomes.append(StepOutcome(step.index, step.name, step.type, "aborted", self.abort_reason, t, t))
             self._event("step_end", step.type, f"aborted: {self.abort_reason}", step=step.index)
         self._event("abort", "runner", self.abort_reason)
-        self.progress.message(f"aborting: {self.abort_reason}; bringing instruments to their safe state")
+        self._bring_to_safe_state(t)
+
+    def _bring_to_safe_state(self, t: float) -> None:
+        """Tell every instrument to go to its safe state at once, the moving axes first, each
+        within its own deadline (:mod:`bench.runner.safe_state`); then read the last frames of the
+        streaming instruments that confirmed (salvage; a failure there is reported, the safe state
+        stands). Run time ``t`` (s) of the abort."""
+        phase = SafeStatePhase(self, list(self.lab.instruments), self._event)
+        self.progress.message(f"aborting: {self.abort_reason}; {phase.announcement()}")
         self.progress.advance(t, "aborting")
-        for name in list(self.lab.instruments):
-            self.flush_notices()
-            try:
-                told = self._safe_state(name)
-            except Exception as exc:  # noqa: BLE001 - the abort path must reach every instrument and the file
-                self._event("error", name, f"safe state failed: {describe(exc)}")
-                self.progress.message(f"{name}: safe state failed: {describe(exc)}")
-                continue
-            self._event("safe_state", name, told or "safe state reached")
-            if name in self.ingest.keys:
-                try:
-                    self._drain(name)  # salvage the last frames; the instrument is already safe
-                except Exception as exc:  # noqa: BLE001
-                    self._event("error", name, f"last frames not read: {describe(exc)}")
-
-    def _safe_state(self, name: str) -> str:
-        """Bring ``name`` to its safe state; a link fault is retried through a reconnection (within
-        the instrument's ``reconnect_timeout``), as the safe state matters most when links fail.
-        Returns what the instrument was told (the driver's account)."""
-        try:
-            told = self.lab.instruments[name].safe_state()
-        except DeviceFault:
-            raise
-        except (InstrumentError, OSError) as exc:
-            self.monitor.reconnect(name, exc, aborting=True)
-            told = self.lab.instruments[name].safe_state()
+        outcomes = phase.run_all()
         self.ingest.streaming.clear()
-        return str(told or "")
+        for o in outcomes:
+            if o.outcome == "confirmed" and o.name in self.ingest.keys:
+                try:
+                    self._drain(o.name)
+                except Exception as exc:  # noqa: BLE001 - the abort path must reach the file
+                    self._event("error", o.name, f"last frames not read: {describe(exc)}")
 
-    def _event(self, kind: str, source: str, message: str, step: int = -1) -> None:
-        """Record an event on the abort path, where the recorder itself may be what failed."""
+    def _event(self, kind: str, source: str, message: str, step: int = -1, *, t_s: float | None = None, data: bytes = b"") -> None:
+        """Record an event on the abort path, where the recorder itself may be what failed (at run
+        time ``t_s``, s; default now)."""
         try:
-            self.rec.event(kind, source, message, t_s=self.clock.now(), step=step)
+            self.rec.event(kind, source, message, t_s=self.clock.now() if t_s is None else t_s, step=step, data=data)
         except (RecorderError, OSError, ValueError):
             pass
 

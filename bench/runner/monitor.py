@@ -33,10 +33,17 @@ controller is not controlling (runaway heater or cooler, failed sensor). Our cho
 overshoot of a controlled ramp, below damage."""
 
 DEFAULT_POLL_INTERVAL_S = 1.0
+DEFAULT_RECONNECT_TIMEOUT_S = 30.0
+"""Reconnection limit of an instrument the lab gives none for (s; the config's default)."""
 
 
 class InterlockTrip(BenchError):
     """An interlock or the lab's safety envelope tripped: the run aborts to the safe state."""
+
+
+def gap_message(name: str, t0: float, t1: float, attempts: int) -> str:
+    """The ``gap`` event's message of a link restored after a fault at ``t0`` (run time, s)."""
+    return f"link restored after {t1 - t0:.1f} s ({attempts} attempt(s)); no data from {name} in between"
 
 
 def describe(exc: BaseException) -> str:
@@ -116,44 +123,63 @@ class LabMonitor:
             self.reconnect(name, exc)
             read()
 
-    def reconnect(self, name: str, exc: BaseException, aborting: bool = False) -> None:
+    def reconnect(self, name: str, exc: BaseException) -> None:
         """Reopen instrument ``name`` with backoff until it identifies again, within its
-        ``reconnect_timeout`` (s); restart its stream if a recording window is open."""
+        ``reconnect_timeout`` (s); restart its stream if a recording window is open. An abort
+        request stops the attempts. The fault and the gap are recorded and shown."""
         run = self.run
         clock = run.clock
         t0 = clock.now()
-        limit = run.lab.reconnect_timeouts.get(name, 30.0)
+        limit = self.reconnect_limit(name)
         run.rec.event("fault", name, f"link fault: {describe(exc)}; reconnecting (up to {limit:g} s)", t_s=t0, step=run.current_step)
         run.progress.message(f"{name}: link fault ({describe(exc)}); reconnecting")
+        attempts = self.restore_link(name, exc, limit, before_wait=run.check_abort, restart_stream=True,
+                                     after_wait=lambda n: run.progress.advance(clock.now(), f"{name}: reconnecting (attempt {n})"))
+        t1 = clock.now()
+        for w in run.windows.all.values():
+            if w.open:
+                w.meta.setdefault("gaps_s", []).append([t0, t1])
+        run.rec.event("gap", name, gap_message(name, t0, t1, attempts), t_s=t1, step=run.current_step,
+                      data=json.dumps({"t_start_s": t0, "t_end_s": t1, "attempts": attempts}).encode())
+        run.progress.message(f"{name}: link restored after {t1 - t0:.1f} s")
+
+    def reconnect_limit(self, name: str) -> float:
+        """How long a link fault of ``name`` is retried (s): its config's ``reconnect_timeout``."""
+        return self.run.lab.reconnect_timeouts.get(name, DEFAULT_RECONNECT_TIMEOUT_S)
+
+    def restore_link(self, name: str, exc: BaseException, limit_s: float, *, before_wait: Callable[[], None],
+                     after_wait: Callable[[int], None], restart_stream: bool, why: str = "") -> int:
+        """Reopen instrument ``name`` (``Lab.reopen``) with backoff (:data:`RECONNECT_BACKOFF_S`, run
+        time) until it identifies again; returns the attempts made. Records and shows nothing, so any
+        thread may call it (the safe state of an abort runs one per instrument). ``before_wait()`` may
+        raise to stop (an abort request, a missed deadline); ``after_wait(attempt)`` is called after
+        each wait; ``restart_stream``: restart the stream of a board whose recording window is open.
+        Raises :class:`InstrumentError` ("not restored within ``limit_s`` s" + ``why``) when the next
+        wait would end beyond ``limit_s`` (s of run time) after the first; a :class:`DeviceFault` as is."""
+        run = self.run
+        clock = run.clock
+        t0 = clock.now()
         attempt, last = 0, exc
         while True:
-            if not aborting:
-                run.check_abort()
+            before_wait()
             wait = RECONNECT_BACKOFF_S[min(attempt, len(RECONNECT_BACKOFF_S) - 1)]
-            if clock.now() - t0 + wait > limit:
-                raise InstrumentError(f"{name}: link lost ({describe(last)}); not restored within {limit:g} s")
+            if clock.now() - t0 + wait > limit_s:
+                raise InstrumentError(f"{name}: link lost ({describe(last)}); not restored within {limit_s:.4g} s{why}")
             clock.sleep(wait)
-            run.progress.advance(clock.now(), f"{name}: reconnecting (attempt {attempt + 1})")
             attempt += 1
+            after_wait(attempt)
             try:
                 drv = run.lab.reopen(name)
                 drv.identify()
                 if name in self.keys:
                     drv.monitor_columns()  # a fresh driver sets its instrument up again (thermocouple scan list)
-                if not aborting and name in run.ingest.streaming and not drv.get_config()["streaming"]:
+                if restart_stream and name in run.ingest.streaming and not drv.get_config()["streaming"]:
                     drv.start_stream()
-                break
+                return attempt
             except DeviceFault:
                 raise
             except (InstrumentError, OSError) as again:
                 last = again
-        t1 = clock.now()
-        for w in run.windows.all.values():
-            if w.open:
-                w.meta.setdefault("gaps_s", []).append([t0, t1])
-        run.rec.event("gap", name, f"link restored after {t1 - t0:.1f} s ({attempt} attempt(s)); no data from {name} in between",
-                      t_s=t1, step=run.current_step, data=json.dumps({"t_start_s": t0, "t_end_s": t1, "attempts": attempt}).encode())
-        run.progress.message(f"{name}: link restored after {t1 - t0:.1f} s")
 
     # ---- interlocks and the lab's envelope ----------------------------------------------------
     def check_interlocks(self, inst: str) -> None:

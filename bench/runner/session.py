@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -13,11 +14,12 @@ from bench.identity import RunIdentity
 from bench.catalog.hooks import RunCatalogHook
 from bench.lab import Lab, open_lab
 from bench.procedure import Procedure
-from bench.record import RunRecorder
+from bench.record import RunRecorder, layout
 from bench.record.skeleton import login_name
 from bench.runner.engine import Runner
 from bench.runner.operator import Operator
 from bench.runner.unit_identity import OverdueCalibration, confirm_overdue, declared_identity, root_attrs
+from bench.startup_signals import StartupSignals, StoppedDuringStartup
 
 
 @dataclass
@@ -37,16 +39,24 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
               sim: bool, realtime: bool, operator: Operator, progress: Any, operator_name: str | None = None,
               fault_spec: Any = None, identity: RunIdentity | None = None,
               overdue: Sequence[OverdueCalibration] = (), accept_overdue: bool = False,
-              catalog: str | None = None) -> RunSession:
+              catalog: str | None = None, startup: StartupSignals | None = None) -> RunSession:
     """Create the run file, open the lab (recording every byte from the first one: replay answers
     it), and build the runner; with ``fault_spec`` (a parsed ``--inject-faults``) the progress sink is
-    wrapped by a :class:`bench.faults.FaultInjector`. On failure everything opened so far
-    is closed and the run file is finalised as aborted with the reason.
+    wrapped by a :class:`bench.faults.FaultInjector`. On failure, or on any ``BaseException``
+    (Ctrl-C …), everything opened so far is closed and the run file is finalised as aborted with the
+    reason; the exception propagates.
 
     ``identity``: the unit under test and station, recorded as root attributes. ``overdue``: the
     run's instruments past their calibration due date, confirmed (``accept_overdue``, else through
     ``operator``) and recorded before any instrument is opened; a "no" finalises the file as
-    aborted and raises :class:`bench.runner.unit_identity.CalibrationDeclined`."""
+    aborted and raises :class:`bench.runner.unit_identity.CalibrationDeclined`.
+
+    ``startup``: the installed start-up signal handler (``bench run``): the file is created and
+    finalised with signals held, a stop signal raises :class:`StoppedDuringStartup` (its
+    ``run_file`` set, the file aborted "stopped during start-up by SIGTERM (while …)"), and once the
+    run is built the handler is handed over: the caller forwards a signal noted since
+    (``startup.signum``) to the runner."""
+    guard = startup if startup is not None else StartupSignals()
     lab: Lab | None = None
     runner: Runner | None = None
     recorder: RunRecorder | None = None
@@ -56,48 +66,78 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
             recorder.event(direction, name, what, t_s=lab.clock.now() if lab else 0.0,
                            step=runner.current_step if runner is not None else -1, data=raw)
 
-    recorder = RunRecorder.create(
-        runs_dir,
-        procedure_name=procedure.name,
-        procedure_text=procedure.text,
-        procedure_path=str(procedure_path),
-        config_text=config.text,
-        config_path=str(config_path),
-        mode="sim" if sim else "hardware",
-        software_version=__version__,
-        flush_interval_s=config.flush_interval_s,
-        **({"operator": operator_name} if operator_name else {}),
-        identity=root_attrs(identity) if identity is not None else None,
-    )
-    # the run's row, `running` (``catalog``: URL or file, default runs_dir/catalog.sqlite); never raises
-    hook = RunCatalogHook.run_started(recorder.path, runs_dir=runs_dir, catalog=catalog)
-
-    def abort_before_start(reason: str) -> None:
-        """The run ends before its first step: file finalised as aborted, its row updated."""
-        recorder.close("aborted", reason)
-        hook.run_ended()
-
+    with guard.held():
+        recorder = RunRecorder.create(
+            runs_dir,
+            procedure_name=procedure.name,
+            procedure_text=procedure.text,
+            procedure_path=str(procedure_path),
+            config_text=config.text,
+            config_path=str(config_path),
+            mode="sim" if sim else "hardware",
+            software_version=__version__,
+            flush_interval_s=config.flush_interval_s,
+            **({"operator": operator_name} if operator_name else {}),
+            identity=root_attrs(identity) if identity is not None else None,
+        )
+    hook: RunCatalogHook | None = None
+    doing = "cataloguing the run"
     try:
+        guard.raise_pending()
+        doing = "recording the config's files"
+        recorder.event(layout.EVENT_CONFIG_SOURCES, "runner", config.name, t_s=0.0, data=config_sources_json(config))
+        doing = "cataloguing the run"
+        # the run's row, `running` (``catalog``: URL or file, default runs_dir/catalog.sqlite); never raises
+        hook = RunCatalogHook.run_started(recorder.path, runs_dir=runs_dir, catalog=catalog)
+        doing = "confirming overdue calibrations"
         confirm_overdue(overdue, operator, accept_overdue, recorder, operator_name or login_name())
-    except BaseException as exc:
-        abort_before_start(f"overdue calibration not confirmed: {exc}")
-        raise
-    try:
+        doing = "opening the instruments"
         lab = open_lab(config, procedure.instruments, sim=sim, realtime=realtime, on_traffic=traffic)
-    except BaseException as exc:
-        abort_before_start(f"instruments could not be opened: {exc}")
-        raise
-    recorder.event("lab_open", "runner", "instruments open", t_s=lab.clock.now())
-    faults: list[Any] = []
-    if fault_spec is not None:
-        from bench.faults import FaultInjector, plan_faults
+        doing = "preparing the run"
+        recorder.event("lab_open", "runner", "instruments open", t_s=lab.clock.now())
+        faults: list[Any] = []
+        if fault_spec is not None:
+            from bench.faults import FaultInjector, plan_faults
 
-        try:
+            doing = "planning the injected faults"
             faults = plan_faults(fault_spec, lab.kinds, procedure.estimated_duration_s())
-        except InputError:
-            lab.close()
-            abort_before_start("bad --inject-faults spec")
-            raise
-        progress = FaultInjector(progress, faults, lab, recorder)
-    runner = Runner(procedure, lab, recorder, progress, operator, declared=declared_identity(config, procedure.instruments))
+            progress = FaultInjector(progress, faults, lab, recorder)
+        runner = Runner(procedure, lab, recorder, progress, operator, declared=declared_identity(config, procedure.instruments))
+        guard.hand_over()
+    except BaseException as exc:
+        with guard.held():  # the run ends before its first step: the file is finalised as aborted, its row updated
+            if lab is not None:
+                try:
+                    lab.close()
+                except Exception:  # noqa: BLE001 - the file must still be finalised; the first failure is reported
+                    pass
+            recorder.close("aborted", _startup_abort_reason(exc, doing))
+            if hook is not None:
+                hook.run_ended()
+        if isinstance(exc, StoppedDuringStartup):
+            exc.run_file = recorder.path
+        raise
     return RunSession(recorder, lab, runner, faults, hook)
+
+
+def config_sources_json(config: LabConfig) -> bytes:
+    """The data of the ``config_sources`` event: the config's absolute path (its directory
+    resolved, as the loader resolved the names in it) and the texts of the files it read, so a
+    replay loads the config with them and nothing from disk (docs/run-file.md)."""
+    path = Path(config.path)
+    return json.dumps({"path": str(path.parent.resolve() / path.name), "sources": config.sources}).encode()
+
+
+def _startup_abort_reason(exc: BaseException, doing: str) -> str:
+    """The abort reason of a run that ended in start-up, while ``doing``."""
+    if isinstance(exc, StoppedDuringStartup):
+        return f"stopped during start-up by {exc.signal_name} (while {doing})"
+    if not isinstance(exc, Exception):  # KeyboardInterrupt without the start-up handler, SystemExit
+        return f"stopped during start-up by {type(exc).__name__} (while {doing})"
+    if doing == "confirming overdue calibrations":
+        return f"overdue calibration not confirmed: {exc}"
+    if doing == "opening the instruments":
+        return f"instruments could not be opened: {exc}"
+    if doing == "planning the injected faults" and isinstance(exc, InputError):
+        return "bad --inject-faults spec"
+    return f"start-up failed while {doing}: {exc or type(exc).__name__}"

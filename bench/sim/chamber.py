@@ -213,10 +213,11 @@ class Chamber:
 
     def _query(self, t_s, which: str):
         with self._lock:
-            t_max = float(np.max(t_s)) if np.ndim(t_s) else float(t_s)
+            scalar = isinstance(t_s, float) or np.ndim(t_s) == 0
+            t_max = float(t_s) if scalar else float(np.max(t_s))
             self.advance(t_max)
-            if np.ndim(t_s) == 0 and t_s == self._t:
-                return {"die": self.die_c, "mount": self.mount_c, "air": self.air_c, "p": self.pressure}[which]
+            if scalar and t_s == self._t:
+                return self.die_c if which == "die" else self.mount_c if which == "mount" else self.air_c if which == "air" else self.pressure
             n = self._hist_t.shape[0]
             if self._hist_n <= n:
                 order = np.arange(self._hist_n)

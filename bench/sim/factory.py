@@ -2,8 +2,15 @@
 
 Each instrument becomes a :class:`SimInstrument`: its serial devices (reached in-process as
 ``sim://NAME`` / ``sim://NAME.SUB``, or on pseudo-terminals under ``bench sim serve``), and, for
-instruments whose link is not serial, the URL of the live endpoint (a Modbus TCP server on
-127.0.0.1, a python-can virtual bus channel).
+instruments whose link is not serial, the URL of the live endpoint.
+
+Two transports for those (:data:`TRANSPORTS`), the same bytes on both: ``inprocess`` (the dry-run
+default) answers in the caller's thread — the chamber controller's Modbus TCP (or RTU) ADUs on an
+in-process byte stream (``modbus-tcp+stream://sim://NAME``), the rate table's CAN frames on a
+synchronous in-process bus (``can://sync/CHANNEL``); ``socket`` is a real Modbus TCP server on
+127.0.0.1 (a thread with an event loop), pymodbus's serial client for RTU, and a python-can virtual
+bus with notifier threads. ``bench sim serve`` (``fixed_ports``) always uses the socket transport:
+other processes connect to it.
 """
 
 from __future__ import annotations
@@ -23,6 +30,8 @@ from bench.sim.thermocouple_reader import ThermocoupleReaderSim
 from bench.sim.world import World
 
 LOCALHOST = "127.0.0.1"
+TRANSPORTS = ("inprocess", "socket")
+"""How a dry-run reaches the simulators whose link is not a plain serial line (see the module docstring)."""
 
 
 @dataclass
@@ -61,14 +70,18 @@ def serial_url(name: str, sub: str) -> str:
 
 
 def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, world: World | None = None,
-                  fixed_ports: bool = False) -> dict[str, SimInstrument]:
+                  fixed_ports: bool = False, transport: str = "inprocess") -> dict[str, SimInstrument]:
     """One simulator per instrument (restricted to ``names`` if given), keyed by instrument name,
     all on one world: the stepper bench and the rate table turn the unit, the chamber heats it.
 
-    ``fixed_ports``: bind network servers to the ports the config gives (``bench sim serve``);
-    otherwise any free port, so parallel dry-runs never collide. Raises ``ValueError`` naming an
-    instrument that has no ``sim`` section.
+    ``fixed_ports``: bind network servers to the ports the config gives (``bench sim serve``, always
+    the ``socket`` transport); otherwise any free port, so parallel dry-runs never collide.
+    ``transport``: one of :data:`TRANSPORTS`. Raises ``ValueError`` naming an instrument that has no
+    ``sim`` section, or for an unknown transport.
     """
+    if transport not in TRANSPORTS:
+        raise ValueError(f"dry-run transport {transport!r} is not one of {', '.join(TRANSPORTS)}")
+    inprocess = transport == "inprocess" and not fixed_ports
     world = world or World(config.world)
     out: dict[str, SimInstrument] = {}
     try:
@@ -77,7 +90,7 @@ def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, w
                 continue
             if inst.sim is None:
                 raise ValueError(f"instrument {name!r} has no 'sim' section in {config.path}; it cannot be simulated")
-            out[name] = _BUILDERS[inst.sim.backend](name, inst, clock, world, fixed_ports)
+            out[name] = _BUILDERS[inst.sim.backend](name, inst, clock, world, fixed_ports, inprocess)
     except BaseException:
         for sim in out.values():
             sim.close()
@@ -89,7 +102,8 @@ def _serial_only(name: str, device, seed: int = 0) -> SimInstrument:
     return SimInstrument(name, device, serial={"": FaultySerialLink(device, seed)})
 
 
-def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
+               inprocess: bool) -> SimInstrument:
     rng = np.random.default_rng(inst.sim.seed)
     if inst.sim.sensor_spec is not None:
         from bench.sim.acs_board import board_model_from_spec
@@ -110,12 +124,14 @@ def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_por
                          endpoints=[("can", f"python-can virtual channel {channel!r} (this process), node {node}")])
 
 
-def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
+                   inprocess: bool) -> SimInstrument:
     world.stage.periodic_errors = tuple(e for e in inst.sim.periodic_errors if e.amplitude)
     return _serial_only(name, StepperBenchSim(clock, world.stage, inst.sim.speed_calibration, inst.sim.serial, inst.baudrate))
 
 
-def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
+                         inprocess: bool) -> SimInstrument:
     from bench.sim.thermocouple_reader import KEYSIGHT_34970A
 
     dev = ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate,
@@ -132,7 +148,8 @@ def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World,
     return out
 
 
-def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
+          inprocess: bool) -> SimInstrument:
     from bench.sim.tpg261 import Tpg261Sim
     from bench.sim.watlow_f4_server import WatlowF4Server
 
@@ -141,8 +158,16 @@ def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: b
         from bench.sim.watlow_f4_rtu import WatlowF4RtuSim
 
         rtu = WatlowF4RtuSim(clock, world.chamber, baudrate=inst.baudrate)
+        scheme = "modbus-rtu+stream" if inprocess else "modbus-rtu"  # the stream client reads without polling the wall clock
         return SimInstrument(name, rtu, serial={"": FaultySerialLink(rtu, inst.sim.seed), "gauge": FaultySerialLink(gauge, inst.sim.seed)},
-                             url=f"modbus-rtu://{serial_url(name, '')}", url_kwargs={"gauge_url": "gauge"})
+                             url=f"{scheme}://{serial_url(name, '')}", url_kwargs={"gauge_url": "gauge"})
+    if inprocess:  # the same Modbus TCP ADUs on an in-process stream, answered in the caller's thread
+        from bench.sim.watlow_f4_stream import WatlowF4StreamSim
+
+        stream = WatlowF4StreamSim(clock, world.chamber)
+        return SimInstrument(name, stream, serial={"": FaultySerialLink(stream, inst.sim.seed), "gauge": FaultySerialLink(gauge, inst.sim.seed)},
+                             url=f"modbus-tcp+stream://{serial_url(name, '')}", url_kwargs={"gauge_url": "gauge"},
+                             endpoints=[("modbus-tcp", f"in-process stream {serial_url(name, '')} (unit id 1)")])
     server = WatlowF4Server(clock, world.chamber)
     port = server.start(LOCALHOST, inst.sim.modbus_port if fixed_ports else 0)
     url = f"modbus-tcp://{LOCALHOST}:{port}"
@@ -150,7 +175,8 @@ def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: b
                          endpoints=[("modbus-tcp", f"{LOCALHOST}:{port} (unit id 1)")], closers=[server.stop])
 
 
-def _rate_table(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool) -> SimInstrument:
+def _rate_table(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
+                inprocess: bool) -> SimInstrument:
     from bench.sim.rate_table import RateTableSim
 
     node = inst.sim.node_id
@@ -158,9 +184,15 @@ def _rate_table(name: str, inst: InstrumentConfig, clock, world: World, fixed_po
         world.table.rotation.eccentricity = inst.sim.periodic_errors[0]  # the rotation axis's worm gear
     # in-process labs get a channel of their own, so parallel dry-runs never share a bus
     channel = inst.sim.can_channel if fixed_ports else f"{inst.sim.can_channel}-{name}-{id(world):x}"
-    sim = RateTableSim(clock, world.table.rotation, world.table.tilt, node_id=node, serial=inst.sim.serial, bus=channel)
-    out = SimInstrument(name, sim, url=f"can://virtual/{channel}?node={node}", closers=[sim.close],
-                        endpoints=[("can", f"python-can virtual channel {channel!r} (this process), nodes {node} rotation, {node + 1} tilt")])
+    if inprocess:  # frames delivered in the sender's thread: no notifier threads, no queues
+        from drivers.can_transport import SyncBus
+
+        bus, interface, what = SyncBus(channel), "sync", "synchronous in-process CAN channel"
+    else:
+        bus, interface, what = channel, "virtual", "python-can virtual channel"
+    sim = RateTableSim(clock, world.table.rotation, world.table.tilt, node_id=node, serial=inst.sim.serial, bus=bus)
+    out = SimInstrument(name, sim, url=f"can://{interface}/{channel}?node={node}", closers=[sim.close],
+                        endpoints=[("can", f"{what} {channel!r} (this process), nodes {node} rotation, {node + 1} tilt")])
     if fixed_ports:
         # other processes reach the bus through a simulated SLCAN USB-CAN adapter on a pseudo-terminal
         from bench.sim.slcan_gateway import SlcanGatewaySim

@@ -5,8 +5,9 @@ N+1) whose read/write callbacks run the CiA 402 state machine (controlword -> st
 profile position (mode 1) and profile velocity (mode 3), and compute actual position/velocity
 from the axis kinematics (:class:`bench.sim.table_motion.AxisMotion`) at ``clock.now()``.
 
-Time: SDOs are answered at once in wall time (on the network's notifier thread); state is
-evaluated at ``clock.now()``, so with a VirtualClock the table only moves when the host sleeps.
+Time: SDOs are answered at once in wall time (on the network's notifier thread on a python-can
+bus; in the sender's thread on a :class:`drivers.can_transport.SyncBus`, the dry-run default); state
+is evaluated at ``clock.now()``, so with a VirtualClock the table only moves when the host sleeps.
 No heartbeat is produced unless the host writes 0x1017 (canopen then runs it in wall time; its
 content does not depend on run time).
 
@@ -39,6 +40,7 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError
 
 from bench.sim.table_motion import AxisMotion
+from drivers.can_transport import connect_network
 from drivers.rate_table import (
     EDS_PATH,
     FAULT,
@@ -118,6 +120,7 @@ class AxisDrive:
             self._index(Obj.PROFILE_DECEL): self._on_accel,
             self._index(Obj.QUICK_STOP_DECEL): self._on_accel,
         }
+        self._readers_by_key: dict = {}
         self._readers = {
             self._index(Obj.STATUSWORD): self.statusword,
             self._index(Obj.POSITION_ACTUAL): self._position_counts,
@@ -126,6 +129,8 @@ class AxisDrive:
             self._index(Obj.ERROR_CODE): lambda: self.fault_code,
             self._index(Obj.ERROR_REGISTER): lambda: self.error_register,
         }
+        self.tpdos = [(base, [(key, od_var(self.od, key)) for key in keys]) for base, keys in TPDO_MAP.values()]
+        """Transmit PDOs (:data:`TPDO_MAP`): (COB-ID base, (object, OD variable) of each mapped object)."""
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
 
@@ -133,8 +138,10 @@ class AxisDrive:
     def pdo_value(self, key):
         """Value of a PDO-mapped object now (the same reader an SDO upload uses)."""
         with self._lock:
-            reader = self._readers.get(self._index(key))
-            return reader() if reader is not None else self.value(key)
+            reader = self._readers_by_key.get(key)
+            if reader is None:
+                reader = self._readers_by_key[key] = self._readers.get(self._index(key)) or (lambda: self.value(key))
+            return reader()
 
     def _index(self, key) -> int:
         return od_var(self.od, key).index
@@ -364,7 +371,8 @@ class RateTableSim:
     :param rotation_motion: kinematics of the rotation axis (default: :class:`AxisMotion` defaults)
     :param tilt_motion: kinematics of the tilt axis
     :param serial: serial number text of the rotation drive (the tilt drive gets ``serial + "-T"``)
-    :param bus: a python-can bus, or a virtual channel name, to attach to at once
+    :param bus: a python-can bus (a :class:`~drivers.can_transport.SyncBus` too), or a virtual
+        channel name, to attach to at once; a bus given is shut down by :meth:`close`
     """
 
     def __init__(self, clock, rotation_motion: AxisMotion | None = None, tilt_motion: AxisMotion | None = None,
@@ -399,12 +407,12 @@ class RateTableSim:
             raise RuntimeError("rate table sim is already attached to a bus")
         if isinstance(bus, str):
             bus = can.Bus(interface="virtual", channel=bus, receive_own_messages=False)
-            self._own_bus = True
+        self._own_bus = True
         net = canopen.Network(bus)
         net.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         for drive in self.drives.values():
             net.add_node(drive.node)
-        net.connect()
+        connect_network(net)
         net.subscribe(SYNC_COB_ID, self._on_sync)
         net.subscribe(NMT_COB_ID, self._on_nmt)  # after the LocalNodes' own NMT handlers
         self.network = net
@@ -450,8 +458,8 @@ class RateTableSim:
         for drive in self.drives.values():
             if drive.axis in self._silent or drive.node.nmt.state != "OPERATIONAL":
                 continue
-            for base, keys in TPDO_MAP.values():
-                payload = b"".join(od_var(drive.od, key).encode_raw(drive.pdo_value(key)) for key in keys)
+            for base, mapped in drive.tpdos:
+                payload = b"".join(var.encode_raw(drive.pdo_value(key)) for key, var in mapped)
                 net.send_message(base + drive.node.id, payload)
 
     def close(self) -> None:

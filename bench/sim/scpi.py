@@ -7,6 +7,7 @@ short form (the upper-case letters) or the long form, case-insensitively (IEEE 4
 
 from __future__ import annotations
 
+import functools
 import re
 
 
@@ -15,18 +16,24 @@ def _node_forms(node: str) -> tuple[str, str]:
     return short.upper(), node.upper()
 
 
-def header_matches(pattern: str, header: str) -> bool:
-    """Does ``header`` (as received) match ``pattern`` (mixed-case SCPI, ``[optional:]`` nodes)?"""
+@functools.lru_cache(maxsize=512)
+def _pattern_forms(pattern: str) -> tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]]:
+    """(forms of the optional leading nodes, forms of the required nodes) of a header pattern."""
     optional = re.findall(r"\[([^\]]+):\]", pattern)
     required = re.sub(r"\[[^\]]+:\]", "", pattern)
+    return tuple(_node_forms(o) for o in optional), tuple(_node_forms(w) for w in required.split(":"))
+
+
+def header_matches(pattern: str, header: str) -> bool:
+    """Does ``header`` (as received) match ``pattern`` (mixed-case SCPI, ``[optional:]`` nodes)?"""
+    optional, want = _pattern_forms(pattern)
     got = header.upper().lstrip(":").split(":")
-    want = required.split(":")
-    for opt in optional:  # an optional leading node may be present or absent
-        if got and got[0] in _node_forms(opt):
+    for forms in optional:  # an optional leading node may be present or absent
+        if got and got[0] in forms:
             got = got[1:]
     if len(got) != len(want):
         return False
-    return all(g in _node_forms(w) for g, w in zip(got, want))
+    return all(g in forms for g, forms in zip(got, want))
 
 
 def parse_channel_list(text: str) -> list[int]:

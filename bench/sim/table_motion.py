@@ -29,6 +29,7 @@ Defaults (one place, each cited; [U] = assumed, no datasheet at hand):
 
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 from dataclasses import dataclass
@@ -104,6 +105,7 @@ class AxisMotion:
         self._a0 = np.array([float(start_angle_deg)])
         self._w0 = np.array([0.0])
         self._acc = np.array([0.0])
+        self._rows = self._as_lists()
         self._last_cmd_t = -math.inf
         self._ever_moved = False
 
@@ -186,9 +188,18 @@ class AxisMotion:
             return float(self._t0[-1])
 
     def commanded_state(self, t_s: float) -> tuple[float, float]:
-        """(angle deg, rate deg/s) of the drive's profile at ``t_s``."""
-        a, w = self._eval(np.asarray([t_s], dtype=float))
-        return float(a[0]), float(w[0])
+        """(angle deg, rate deg/s) of the drive's profile at ``t_s``: :meth:`_eval_locked` for one
+        time, in plain floats (the same operations in the same order, so the same values) — a drive
+        is asked this several times per poll."""
+        t = float(t_s)
+        with self._lock:
+            t0s, a0s, w0s, accs = self._rows
+            i = bisect.bisect_right(t0s, t) - 1
+            if i < 0:
+                raise ValueError(f"time before the retained axis history (starts at {t0s[0]} s)")
+            t0, w0, acc = t0s[i], w0s[i], accs[i]
+            dt = t - t0 if math.isfinite(t0) else 0.0
+            return a0s[i] + w0 * dt + 0.5 * acc * dt * dt, w0 + acc * dt
 
     def commanded_angle_deg(self, t_s) -> np.ndarray:
         return self._eval(np.asarray(t_s, dtype=float))[0]
@@ -244,9 +255,14 @@ class AxisMotion:
         drop = int(np.searchsorted(t0, t_s - self.horizon_s, side="right")) - 1
         drop = max(drop, len(t0) - self.max_segments, 0)
         self._t0, self._a0, self._w0, self._acc = t0[drop:], a0[drop:], w0[drop:], acc[drop:]
+        self._rows = self._as_lists()
         self._last_cmd_t = t_s
         if any(s[2] != 0.0 or s[3] != 0.0 for s in segs):
             self._ever_moved = True
+
+    def _as_lists(self) -> tuple[list[float], list[float], list[float], list[float]]:
+        """The segments (start time, angle, rate, acceleration) as lists, for :meth:`commanded_state`."""
+        return self._t0.tolist(), self._a0.tolist(), self._w0.tolist(), self._acc.tolist()
 
     def _eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         with self._lock:

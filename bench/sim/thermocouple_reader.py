@@ -28,6 +28,7 @@ value [U-]); an open channel without the check reads a floating input (random EM
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -176,7 +177,7 @@ class ThermocoupleReaderSim(LineDeviceSim):
             t_ref = self.terminal_temp_c
             tj = self.junction_temp_c(channel, t_s)
             try:
-                volts_mv = temp_to_emf_mv(tj, wire) - temp_to_emf_mv(t_ref, wire)
+                volts_mv = temp_to_emf_mv(tj, wire) - _emf_of_fixed_temp(t_ref, wire)
             except ValueError:
                 return OVERLOAD
             if spec.noise_uv_rms > 0:
@@ -186,7 +187,7 @@ class ThermocoupleReaderSim(LineDeviceSim):
             volts_mv = round(volts_mv / step) * step
         kind = self.tc_type.get(channel, "K")
         try:
-            value = emf_to_temp_c(volts_mv + temp_to_emf_mv(self.measured_rj_c, kind), kind, exact=spec.exact_conversion)
+            value = emf_to_temp_c(volts_mv + _emf_of_fixed_temp(self.measured_rj_c, kind), kind, exact=spec.exact_conversion)
         except ValueError:
             return OVERLOAD  # outside the configured type's range: the logger reports overload
         if fault and fault["fault"] == "noisy":
@@ -298,6 +299,13 @@ class ThermocoupleReaderSim(LineDeviceSim):
         """One scan: °C per channel in scan order (overload value for open, checked channels)."""
         now = self.clock.now()
         return [self._reading(c, now) for c in self.scan]
+
+
+@functools.lru_cache(maxsize=64)
+def _emf_of_fixed_temp(temp_c: float, tc_type: str) -> float:
+    """:func:`temp_to_emf_mv` of the few temperatures every reading uses again (the terminals, the
+    measured reference junction), computed once."""
+    return temp_to_emf_mv(temp_c, tc_type)
 
 
 def _readings(values: list[float]) -> str:

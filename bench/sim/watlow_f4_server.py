@@ -52,6 +52,8 @@ OPEN_SENSOR_CODE = 65  # "Open" in the F4T/D4T input error enum (protocols.md se
 DEFAULT_ALARM_BAND_C = 5.0  # our choice [U]: deviation alarm when |PV - SP| > 5 °C
 RUN_STATE_CONSTANT = 1  # register 200: 0,1 = constant set point (protocols.md section 1 [V])
 FAULTS = ("exception", "timeout", "runaway", "stuck", "open_sensor", "disconnect")
+_LIMITS = {r.address: (r.decode(0x8000 if r.signed else 0), r.decode(0x7FFF if r.signed else 0xFFFF)) for r in BY_ADDRESS.values()}
+"""Register address -> (lowest, highest) lab value its raw 16 bits hold."""
 _WRITE_FCS = (6, 16)
 _READ_FCS = (3,)
 
@@ -166,7 +168,7 @@ class WatlowF4Sim:
         if reg.name in ("pv_input_1", "pv_input_2") and self._open(int(reg.name[-1])):
             return NO_VALUE_RAW & 0xFFFF
         value = self._values[reg.name][0]()
-        lo, hi = reg.decode(0x8000 if reg.signed else 0), reg.decode(0x7FFF if reg.signed else 0xFFFF)
+        lo, hi = _LIMITS[reg.address]
         return reg.encode(min(hi, max(lo, value)))
 
     def write_raw(self, reg: Register, raw: int) -> bool:

@@ -1,0 +1,147 @@
+"""Starting a run from the web station: the procedure library, ``bench plan``'s view, the same
+validation as ``bench run`` (located messages), and the run itself on a worker thread.
+
+The checks are the ones ``bench run`` makes, through the same functions (``load_checked``,
+``run_identity``, ``overdue_calibrations``, ``check_destination``, ``start_run``); an instrument past
+its calibration due date needs the form's explicit confirmation (recorded as
+``--accept-overdue-calibration`` is). The plan is ``bench plan``'s own output: the command is run
+with the procedure file of the library and the parameters as separate arguments (no shell).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bench.errors import InputError, InputErrors
+from bench.web.paths import PROCEDURE_SUFFIXES, procedure_path, run_id
+
+PLAN_TIMEOUT_S = 60.0
+"""Longest wall time (s) ``bench plan`` may take for the plan view."""
+PLAN_COLUMNS = 120
+"""Terminal width ``bench plan`` lays its table out for."""
+
+
+@dataclass
+class StartRequest:
+    """What the start form sends: procedure (name in the library), parameter overrides (name ->
+    value text with units), unit serial, ``dry_run`` (simulators) with ``realtime`` (wall-clock pace),
+    ``accept_overdue`` (confirm instruments past their calibration due date)."""
+
+    procedure: str
+    params: dict[str, str]
+    unit: str | None = None
+    dry_run: bool = True
+    realtime: bool = True
+    accept_overdue: bool = False
+
+
+def errors_of(exc: InputError | InputErrors) -> list[str]:
+    """The located one-line messages of an input error, as the CLI prints them."""
+    return [e.one_line() for e in exc.errors] if isinstance(exc, InputErrors) else [exc.one_line()]
+
+
+def library(directory: Path) -> list[dict[str, Any]]:
+    """The procedures of the library directory: ``name`` (file name), ``procedure`` (its name),
+    ``title``, ``instruments``, ``parameters`` (name -> default as written), or ``error`` (one line)."""
+    from bench.procedure import load_procedure
+
+    out = []
+    if not directory.is_dir():
+        return out
+    for p in sorted(x for x in directory.iterdir() if x.suffix in PROCEDURE_SUFFIXES and x.is_file()):
+        item: dict[str, Any] = {"name": p.name}
+        try:
+            proc = load_procedure(p)
+            item.update(procedure=proc.name, title=proc.title, instruments=list(proc.instruments),
+                        parameters={k: _param_text(v) for k, v in proc.parameters.items()},
+                        prompts=sum(1 for s in proc.steps if s.type == "prompt"), steps=len(proc.steps))
+        except (InputError, InputErrors) as exc:
+            item["error"] = errors_of(exc)[0]
+        out.append(item)
+    return out
+
+
+def _param_text(v: Any) -> str:
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_param_text(x) for x in v) + "]"
+    return str(v)
+
+
+def clean_params(params: Any) -> dict[str, str]:
+    """Parameter overrides from a request: a mapping of names to value texts (:class:`InputError` otherwise)."""
+    if params is None:
+        return {}
+    if not isinstance(params, dict):
+        raise InputError("parameters: expected a mapping of names to values", None, "-p")
+    out = {}
+    for k, v in params.items():
+        if not isinstance(k, str) or not k.strip() or not isinstance(v, (str, int, float)) or isinstance(v, bool):
+            raise InputError(f"expected NAME=VALUE such as cold=-20degC, got {k!r}={v!r}", None, "-p")
+        if str(v).strip():
+            out[k.strip()] = str(v).strip()
+    return out
+
+
+def plan(library_dir: Path, name: str, params: dict[str, str], config: Path | None) -> dict[str, Any]:
+    """``bench plan``'s view of the procedure: ``ok``, ``text`` (its table), ``errors`` (its located lines)."""
+    path = procedure_path(library_dir, name)
+    argv = [sys.executable, "-m", "bench", "plan", str(path)]
+    if config is not None:
+        argv += ["--config", str(config)]
+    argv += [f"--param={k}={v}" for k, v in params.items()]
+    env = {**os.environ, "COLUMNS": str(PLAN_COLUMNS), "NO_COLOR": "1", "TERM": "dumb"}
+    try:
+        p = subprocess.run(argv, capture_output=True, text=True, timeout=PLAN_TIMEOUT_S, env=env, stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        return {"ok": False, "text": "", "errors": [f"bench plan took longer than {PLAN_TIMEOUT_S:g} s"]}
+    return {"ok": p.returncode == 0, "text": p.stdout, "errors": [line for line in p.stderr.splitlines() if line.strip()]}
+
+
+def start(req: StartRequest, *, library_dir: Path, config_path: Path | None, sim_config: Path | None, runs_dir: Path,
+          catalog: str | None, runs: Any, operator_name: str, busy: set[str]) -> Any:
+    """Validate ``req`` as ``bench run`` would and start the run on a worker thread; returns the
+    :class:`~bench.web.live.LiveRun`. A dry-run uses ``config_path`` (its simulators) or, without one,
+    ``sim_config``; a real run needs ``config_path``. ``busy``: instruments of the real lab held by
+    other runs (refused). Raises :class:`InputError`/:class:`InputErrors` (located) for bad input."""
+    from bench.identity import utc_today
+    from bench.procedure.estimate import run_file_bytes
+    from bench.record import check_destination
+    from bench.runner.session import start_run
+    from bench.runner.unit_identity import overdue_calibrations, run_identity
+    from bench.validate import load_checked
+    from bench.web.live import LiveRun, PageProgress, WebAsker, WebOperator
+
+    path = procedure_path(library_dir, req.procedure)
+    cfg = config_path if config_path is not None else (sim_config if req.dry_run else None)
+    if cfg is None:
+        raise InputError("a run on the real lab needs the server started with --config LAB.yaml", None, "--config")
+    procedure, config = load_checked(path, cfg, req.params)
+    sim = req.dry_run or config.mode == "sim"
+    if sim:
+        no_sim = [n for n in procedure.instruments if config.instruments[n].sim is None]
+        if no_sim:
+            raise InputErrors([InputError("has no 'sim' section, so it cannot be simulated (dry-run)", config.instruments[n].location, n)
+                               for n in no_sim])
+    else:
+        taken = sorted(set(procedure.instruments) & busy)
+        if taken:
+            raise InputError(f"instrument(s) {', '.join(taken)} are in use by another run on this station", None, "instruments")
+    identity = run_identity(procedure, config, unit=req.unit or None)
+    overdue = overdue_calibrations(config, procedure.instruments, utc_today())
+    if overdue and not req.accept_overdue:
+        raise InputErrors([InputError(f"{o.describe()}; confirm it on the form to run anyway", o.location, o.instrument) for o in overdue])
+    check_destination(runs_dir, run_file_bytes(procedure))
+    asker, progress = WebAsker(), PageProgress()
+    session = start_run(procedure, config, procedure_path=path, config_path=cfg, runs_dir=runs_dir, sim=sim,
+                        realtime=sim and req.realtime, operator=WebOperator(asker), progress=progress,
+                        operator_name=operator_name, identity=identity, overdue=overdue, accept_overdue=req.accept_overdue,
+                        catalog=catalog)
+    rid = run_id(runs_dir, session.recorder.path) or session.recorder.path.name
+    live = LiveRun(rid, session.recorder.path, session, asker, progress, tuple(procedure.instruments), sim)
+    runs.launch(live)
+    return live

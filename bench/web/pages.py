@@ -1,0 +1,134 @@
+"""The data behind the pages: the catalogue as a filtered table, a run as JSON, a live snapshot.
+
+The runs table is the catalogue of runs (``bench runs``'s query and filters); run files of the
+runs directory that the catalogue does not list yet (written by ``bench replay``, ``bench import``,
+a test, or killed before their row was written) are added to it first, as ``bench catalog
+rebuild`` would. A run page is ``bench inspect --json`` (:func:`bench.record.summary_json.summary_json`)
+plus the verdict of the report and the plottable channels; the live page reads the file as
+``bench watch`` does (only what was added since the last read).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from bench.errors import InputError
+from bench.web.paths import run_id
+
+FILTERS = ("unit", "procedure", "status", "verdict", "since")
+"""Query parameters of the runs table (as ``bench runs --unit/--procedure/--status/--verdict/--since``)."""
+MAX_ROWS = 1000
+"""Most rows the runs table lists (the latest ones)."""
+LIVE_EVENTS = 12
+
+
+def _json_value(v: Any) -> Any:
+    if isinstance(v, datetime):
+        return v.strftime("%Y-%m-%dT%H:%M:%SZ")
+    if isinstance(v, float) and v != v:
+        return None
+    return v
+
+
+def runs_table(runs_dir: Path, catalog: str | None, query: dict[str, str]) -> dict[str, Any]:
+    """The catalogue rows matching ``query`` (:data:`FILTERS`; empty values ignored), latest
+    :data:`MAX_ROWS`, newest first, each with its ``id`` (None for a file outside the runs directory).
+    Bad filter values raise :class:`InputError` naming the filter."""
+    from bench.catalog.query import RunFilter, find_runs, parse_since, parse_status, parse_text, parse_verdict
+    from bench.catalog.store import open_catalog, resolve_url
+
+    q = {k: (query.get(k) or "").strip() or None for k in FILTERS}
+    f = RunFilter(unit=parse_text(q["unit"], "unit"), procedure=parse_text(q.get("procedure"), "procedure"),
+                  status=parse_status(q["status"], "status"), verdict=parse_verdict(q["verdict"], "verdict"),
+                  since=parse_since(q["since"], field="since"), limit=MAX_ROWS)
+    url = resolve_url(catalog, runs_dir)
+    with open_catalog(url) as cat:
+        add_uncatalogued(cat, runs_dir)
+        rows = find_runs(cat, f)
+    out = []
+    for r in reversed(rows):
+        item = {k: _json_value(v) for k, v in r.items()}
+        item["id"] = run_id(runs_dir, Path(r["path"])) if Path(r["path"]).is_file() else None
+        out.append(item)
+    return {"runs": out, "filters": {k: q[k] or "" for k in FILTERS}}
+
+
+_added_lock = threading.Lock()
+
+
+def add_uncatalogued(cat: Any, runs_dir: Path) -> int:
+    """Catalogue the run files of ``runs_dir`` (and below) that have no row yet; unreadable ones are skipped."""
+    import sqlalchemy as sa
+
+    from bench.catalog.rebuild import run_files
+    from bench.catalog.row import run_row
+    from bench.catalog.schema import runs
+
+    if not runs_dir.is_dir():
+        return 0
+    with _added_lock:
+        known = {r["path"] for r in cat.select(sa.select(runs.c.path))}
+        new = []
+        for p in run_files(runs_dir, recursive=True):
+            if str(p.resolve()) in known or str(p.absolute()) in known:
+                continue
+            try:
+                new.append(run_row(p))
+            except (InputError, OSError):
+                continue
+        return cat.upsert(new)
+
+
+def run_page(path: Path) -> dict[str, Any]:
+    """A run as the run page shows it: ``bench inspect --json`` with the report's ``verdict``
+    (word and reasons) and every plottable ``channels`` entry."""
+    from bench.record import read_run_summary
+    from bench.record.checks import check_results, run_verdict
+    from bench.record.reader import _open_run
+    from bench.record.summary_json import summary_json
+    from bench.web.decimate import channels
+
+    summary = read_run_summary(path, traffic=False)
+    out = summary_json(summary, max_events=200)
+    v = run_verdict(summary, check_results(summary))
+    out["verdict"] = {"word": v.word, "reasons": v.reasons}
+    with _open_run(path) as (f, _warnings):
+        out["channels"] = channels(f)
+    out["file_name"] = path.name
+    out["file_bytes"] = path.stat().st_size
+    return out
+
+
+class LiveReader:
+    """Snapshots of live run files for the live page, one :class:`bench.watch.StepTracker` per file so
+    each read only decodes the events added since the last (thread-safe)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._trackers: dict[str, Any] = {}
+
+    def snapshot(self, path: Path) -> dict[str, Any]:
+        """The run's state now: status (``waiting`` while a prompt is open), run time, current step,
+        steps, latest events, stream rows and last times."""
+        from bench.watch import StepTracker, snapshot
+
+        key = str(path)
+        with self._lock:
+            tracker = self._trackers.setdefault(key, StepTracker(keep=LIVE_EVENTS))
+            s = snapshot(path, max_events=LIVE_EVENTS, tracker=tracker, trend_points=2)
+        cur = s.current_step
+        return {
+            "status": s.status, "status_detail": s.status_detail, "run_time_s": s.run_time_s, "abort_reason": s.abort_reason,
+            "final": s.final, "steps_total": s.steps_total, "steps_done": s.steps_done,
+            "current_step": None if cur is None else {"step": cur.index + 1, "name": cur.name, "type": cur.type},
+            "steps": [{"step": x.index + 1, "name": x.name, "type": x.type, "outcome": x.outcome, "t_start_s": x.t_start_s,
+                       "t_end_s": x.t_end_s} for x in s.steps],
+            "waiting_for": None if s.waiting_for is None else {"prompt": s.waiting_for.text, "id": s.waiting_for.id},
+            "events": [{"t_s": e.t_s, "kind": e.kind, "source": e.source, "message": e.message} for e in s.events],
+            "streams": [{"key": st.key, "rows": st.rows, "t_last_s": st.t_last_s, "rate_hz": st.rate_hz} for st in s.streams],
+            "read_at_unix": time.time(),
+        }
