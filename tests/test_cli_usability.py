@@ -128,7 +128,7 @@ def test_report_force_overwrites_and_never_its_input(tmp_path):
 
 
 def test_output_file_keeps_the_old_file_when_the_writer_fails(tmp_path):
-    from bench.cli_common import output_file
+    from bench.outputs import output_file
 
     out = tmp_path / "x.txt"
     out.write_text("old")

@@ -135,7 +135,8 @@ def test_dry_run_from_the_page_is_watched_answered_and_stopped(browser, station)
     operator = [e for e in s.events if e.kind == "operator"]
     answer = [json.loads(e.message) for e in operator if e.source == "prompt"]
     assert answer and answer[0]["answer"] == "yes" and answer[0]["source"] == "web 127.0.0.1"
-    stops = [json.loads(e.message) for e in operator if e.source == "web 127.0.0.1"]
+    assert not [e for e in operator if e.source == "web 127.0.0.1"]  # controls are not answers: a prompt still waits
+    stops = [json.loads(e.message) for e in s.events if e.kind == "control" and e.source == "web 127.0.0.1"]
     assert [x["action"] for x in stops] == ["stop"] and stops[0]["origin"] == "web 127.0.0.1"
     assert any(e.kind == "safe_state" for e in s.events)
 
@@ -160,7 +161,7 @@ def test_control_without_the_token_is_refused_and_changes_nothing(station):
         assert live["control"]["running"] and not live["control"]["paused"] and live["control"]["prompt"]
         s = read_run_summary(station.runs_dir / rid)
         assert s.live_status == "waiting"
-        assert not [e for e in s.events if e.kind == "operator"]
+        assert not [e for e in s.events if e.kind in ("operator", "control")]
     finally:
         _request(station.url + "api/stop", {"id": rid}, token=TOKEN)
         _wait(lambda: not _request(station.url + f"api/live?id={rid}")[1]["control"]["running"], 30, "the run to stop")

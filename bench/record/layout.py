@@ -281,6 +281,10 @@ path -> text), as the ``procedure`` event holds the procedure's. A replay reads 
 files written before it lack it."""
 EVENT_OPERATOR = "operator"
 """An operator's answer; the message is a JSON object (a prompt step: source ``prompt``)."""
+EVENT_CONTROL = "control"
+"""An operator's control action taken from outside the runner's terminal (the web station): source
+the origin (``web 127.0.0.1``), message JSON ``action`` (``pause``, ``resume``, ``stop``),
+``origin``, ``message``. Not an answer: a prompt still waits after it."""
 SOURCE_CALIBRATION = "calibration"
 """Source of the :data:`EVENT_OPERATOR` event confirming a run on an instrument past its calibration
 due date; message JSON: ``instrument``, ``calibration_due``, ``date`` (UTC, of the run), ``answer``,

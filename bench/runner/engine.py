@@ -22,7 +22,7 @@ from typing import Callable, Protocol
 from bench.errors import BenchError, InstrumentError, RecorderError
 from bench.lab import Lab
 from bench.procedure import Procedure, Step
-from bench.record import RunRecorder
+from bench.record import RunRecorder, layout
 from bench.record.checks import check_counts, check_from_result, check_json, checks_verdict
 from bench.record.summary_json import json_ready
 from bench.runner import steps as step_handlers
@@ -155,7 +155,7 @@ class Runner:
 
     def operator_event(self, action: str, origin: str, message: str = "") -> None:
         """Record an operator action taken from another thread (the web station: ``action`` ``pause``,
-        ``resume``, ``stop``; ``origin`` e.g. ``web 127.0.0.1``) as an event ``operator`` (source the
+        ``resume``, ``stop``; ``origin`` e.g. ``web 127.0.0.1``) as an event ``control`` (source the
         origin, message JSON ``action``, ``origin``, ``message``). Only queued here: the runner's own
         thread writes it at its next check point, as h5py writes must stay on that thread."""
         self.operator_events.append((action, origin, message))
@@ -172,7 +172,7 @@ class Runner:
             self.progress.message(self.notices.pop(0))
         while self.operator_events:
             action, origin, message = self.operator_events.pop(0)
-            self._event("operator", origin, json.dumps({"action": action, "origin": origin, "message": message}), step=self.current_step)
+            self._event(layout.EVENT_CONTROL, origin, json.dumps({"action": action, "origin": origin, "message": message}), step=self.current_step)
 
     # ---- run --------------------------------------------------------------------------------
     def prepare(self) -> None:
