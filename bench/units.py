@@ -14,7 +14,26 @@ import re
 from pathlib import Path
 from typing import Any
 
-import pint
+
+def _import_pint_without_dask():  # noqa: ANN202 - returns the pint module
+    """pint looks for dask when it is imported and, where dask is installed (``bench fleet`` needs
+    it), imports it: 60 ms of every ``bench validate``. bench never gives pint dask arrays, so the
+    lookup is answered "absent" while pint is imported (a ``None`` entry in ``sys.modules``) and
+    dask stays importable afterwards."""
+    import sys
+
+    if "dask" in sys.modules or "pint" in sys.modules:
+        import pint as module
+        return module
+    sys.modules["dask"] = None  # type: ignore[assignment]
+    try:
+        import pint as module
+    finally:
+        del sys.modules["dask"]
+    return module
+
+
+pint = _import_pint_without_dask()
 
 from bench.errors import InputError, Location
 
@@ -24,13 +43,19 @@ _DEG_ABSOLUTE = re.compile(r"(?<![A-Za-z_])(deg[CF]|degree_(?:Celsius|Fahrenheit
 _NAME = r"[A-Za-z_\u00b0\u00b5\u03bc\u03a9%][A-Za-z0-9_\u00b0\u00b5\u03bc\u03a9%]*+(?:\s*+(?:\*\*|\^)\s*+[+-]?\d++(?:\.\d++)?)?+"
 _OP = r"(?:\s*+[*/]\s*+|\s++)"
 _TERM = rf"(?:{_NAME}|\(\s*+{_NAME}(?:{_OP}{_NAME})*+\s*+\))"
-_QUANTITY_TEXT = re.compile(
-    r"\s*+[+-]?(?:\d++\.?\d*+|\.\d++)(?:[eE][+-]?\d++)?+"  # one number, first
-    rf"(?:\s*+/?\s*+{_TERM}(?:{_OP}{_TERM})*+)?+\s*+"  # then unit names joined by * and /, each with an exponent
-)
-"""A quantity as text: one number, then unit names joined by ``*``, ``/`` and exponents
-(``-29 degC``, ``1e-5 Torr``, ``0.04 g^2/Hz``, ``20 deg/s**2``). Anything else (``66 degC * 0``,
-``10 min + 5 s``) would be evaluated by pint as an expression: it is refused, not computed."""
+
+
+@functools.lru_cache(maxsize=1)
+def _quantity_text() -> re.Pattern[str]:
+    """A quantity as text: one number, then unit names joined by ``*``, ``/`` and exponents
+    (``-29 degC``, ``1e-5 Torr``, ``0.04 g^2/Hz``, ``20 deg/s**2``). Anything else (``66 degC * 0``,
+    ``10 min + 5 s``) would be evaluated by pint as an expression: it is refused, not computed.
+    Compiled on first use (a few ms a command that reads no quantity need not pay)."""
+    return re.compile(
+        r"\s*+[+-]?(?:\d++\.?\d*+|\.\d++)(?:[eE][+-]?\d++)?+"  # one number, first
+        rf"(?:\s*+/?\s*+{_TERM}(?:{_OP}{_TERM})*+)?+\s*+"  # then unit names joined by * and /, each with an exponent
+    )
+
 
 TEMPERATURE_DIFFERENCE = "delta_degC"
 """Units of temperature differences (bands) and, as ``delta_degC/min``, of temperature rates."""
@@ -77,7 +102,7 @@ def to_units(value: Any, units: str, location: Location | None = None, field: st
         return float(value)
     if not isinstance(value, str):
         raise InputError(f"expected a quantity in {units} such as '10 {units}', got {value!r}", location, field)
-    if len(value) > 200 or not _QUANTITY_TEXT.fullmatch(value):
+    if len(value) > 200 or not _quantity_text().fullmatch(value):
         raise InputError(f"cannot read quantity {value[:60]!r}: expected a number then its units, such as '10 {units}' "
                          "(expressions are not evaluated)", location, field)
     if "delta_deg" in units:
