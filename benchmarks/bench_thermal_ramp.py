@@ -125,8 +125,8 @@ def main() -> int:
               f"({r['cpu_speed']:6.0f}x per CPU s), peak RSS {r['peak_rss_mb']:4.0f} MB (until the run ended {r['run_peak_rss_mb']:4.0f} MB)")
     print(f"whole lab {args.hours:g} h vs board alone: speed {result['speed_ratio_vs_board_alone']:.2f} "
           f"(per CPU s {result['cpu_speed_ratio_vs_board_alone']:.2f}); peak memory {args.hours:g} h / {args.short_hours:g} h: "
-          f"{result['memory_ratio_long_vs_short']:.2f} (until the run ended: {result['run_memory_ratio_long_vs_short']:.2f}; "
-          f"after it, 'bench run' catalogues the file, reading its whole event table)")
+          f"{result['memory_ratio_long_vs_short']:.2f} for the whole 'bench run' process, cataloguing included "
+          f"(until the run ended: {result['run_memory_ratio_long_vs_short']:.2f})")
     return 0
 
 
