@@ -185,3 +185,29 @@ def test_run_on_a_disk_filled_during_recording(small_disk: Path, tmp_path: Path)
     r = run_cli("inspect", str(path))
     assert r.returncode == 0, r.stderr
     assert "aborted" in r.stdout and str(rows) in r.stdout
+
+
+def test_a_new_run_removes_the_reserves_killed_runs_left(tmp_path: Path) -> None:
+    """SIGKILL leaves a run's reserve file; the next run in that directory deletes it, and only it."""
+    import time
+
+    from bench.record import RunRecorder
+    from bench.record.space import STALE_RESERVE_AFTER_S, reserve_path
+
+    killed = tmp_path / "20260101T000000Z_killed.h5"
+    killed.write_bytes(b"x")
+    old = time.time() - STALE_RESERVE_AFTER_S - 5
+    os.utime(killed, (old, old))
+    live = tmp_path / "20260101T000001Z_live.h5"
+    live.write_bytes(b"x")
+    orphan = tmp_path / ".20260101T000002Z_gone.h5.reserve"
+    for p in (reserve_path(killed), reserve_path(live), orphan):
+        p.write_bytes(b"\0" * 1024)
+    rec = RunRecorder.create(tmp_path, procedure_name="next", procedure_text="p", procedure_path="p.yaml",
+                             config_text="c", config_path="c.yaml", mode="sim", software_version="test")
+    try:
+        assert not reserve_path(killed).exists() and not orphan.exists()
+        assert reserve_path(live).exists()  # its run file is being written
+        assert reserve_path(rec.path).exists()
+    finally:
+        rec.close("aborted", "test")

@@ -734,3 +734,57 @@ def test_a_summary_of_some_event_kinds_reads_the_same_events_without_the_traffic
     full = [e for e in read_run_summary(path).events if e.kind in kinds]
     some = read_run_summary(path, event_kinds=kinds).events
     assert some == full and len(some) >= 4
+
+
+_TORN_WRITER = r"""
+import os, sys
+import numpy as np
+from pathlib import Path
+from bench.record import Column, RunRecorder
+rec = RunRecorder.create(Path(sys.argv[1]), procedure_name="torn", procedure_text="p", procedure_path="p.yaml",
+                         config_text="c", config_path="c.yaml", mode="sim", software_version="test")
+key = rec.add_stream("inst", [Column("v", "V")])
+rec.start()
+n = int(sys.argv[2])
+rec.append(key, np.arange(n) / 100.0, v=np.arange(n, dtype=float))
+rec.flush()
+print(rec.path, flush=True)
+if sys.argv[3] == "close":
+    rec.close("completed", "")
+os._exit(0)  # "kill -9": nothing else is written
+"""
+
+
+@pytest.mark.parametrize("ending", ["killed", "close"])
+def test_a_torn_last_chunk_is_read_in_a_killed_file_and_excluded_in_a_finalised_one(tmp_path: Path, ending: str) -> None:
+    """A writer killed while rewriting a stream's last (partial) chunk leaves its checksum wrong; the
+    rows it had flushed are still there. Readers of a file not finalised read that chunk past its
+    checksum; in a finalised file the same damage is left out; `inspect --verify` reports both."""
+    import subprocess
+    import sys
+
+    import h5py
+
+    from bench.record.reader import read_stream_checked
+
+    n = 300  # rows: less than one chunk, so the only chunk is the last one
+    out = subprocess.run([sys.executable, "-c", _TORN_WRITER, str(tmp_path), str(n), ending], capture_output=True, text=True,
+                         timeout=60, cwd=Path(__file__).resolve().parents[1])
+    path = Path(out.stdout.strip().splitlines()[-1])
+    with h5py.File(path, "r", swmr=True) as f:
+        ds = f["/streams/inst"]["v"]
+        info = ds.id.get_chunk_info_by_coord((0,))
+        chunk_rows = ds.chunks[0]
+    assert chunk_rows > n
+    with open(path, "r+b") as fh:  # a byte past the flushed rows changes: the torn rewrite
+        fh.seek(info.byte_offset + (n + 5) * 8)
+        b = fh.read(1)
+        fh.seek(info.byte_offset + (n + 5) * 8)
+        fh.write(bytes([b[0] ^ 0x40]))
+    got = read_stream_checked(path, "inst")
+    if ending == "killed":
+        assert not got.excluded and np.array_equal(got.data["v"], np.arange(n, dtype=float))
+    else:
+        assert got.excluded and got.excluded[0].row_start == 0 and got.data["v"].size == 0
+    verify = subprocess.run([sys.executable, "-m", "bench", "inspect", "--verify", str(path)], capture_output=True, text=True, timeout=60)
+    assert verify.returncode == 1 and "FAILED" in verify.stdout, verify.stdout + verify.stderr

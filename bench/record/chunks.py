@@ -135,10 +135,16 @@ def _failure(exc: OSError) -> str:
     raise exc
 
 
-def read_rows(ds: h5py.Dataset, start: int, end: int) -> tuple[np.ndarray, list[BadChunk]]:
+def read_rows(ds: h5py.Dataset, start: int, end: int, *, torn_tail: bool = False) -> tuple[np.ndarray, list[BadChunk]]:
     """Rows ``[start, end)`` of ``ds`` (``start`` at a chunk boundary) and the chunks among them that
     fail their checksum, whose rows are zeros in the array. Other read failures (damaged metadata)
-    raise ``OSError``: reading further would only fail again, each time slowly."""
+    raise ``OSError``: reading further would only fail again, each time slowly.
+
+    ``torn_tail``: the file was not finalised (its writer stopped, or still writes). Its recorder
+    rewrites the last, partial chunk of a dataset in place at every flush, and a writer killed in the
+    middle of that rewrite leaves the chunk's checksum wrong although its rows already flushed hold
+    the same bytes as before: that chunk is then read past its checksum (:func:`_raw_rows`), not left
+    out. ``bench inspect --verify`` still reports it (it never passes ``torn_tail``)."""
     try:
         return np.asarray(ds[start:end]), []
     except OSError as exc:
@@ -153,8 +159,29 @@ def read_rows(ds: h5py.Dataset, start: int, end: int) -> tuple[np.ndarray, list[
         try:
             out[a - start:b - start] = ds[a:b]
         except OSError as exc:
-            bad.append(BadChunk(ds.name, a, b, _failure(exc)))
+            reason = _failure(exc)
+            raw = _raw_rows(ds, a, b) if torn_tail and a + step >= int(ds.shape[0]) else None
+            if raw is not None:
+                out[a - start:b - start] = raw
+                continue
+            bad.append(BadChunk(ds.name, a, b, reason))
     return out, bad
+
+
+def _raw_rows(ds: h5py.Dataset, a: int, b: int) -> np.ndarray | None:
+    """Rows ``[a, b)`` of the chunk starting at row ``a`` read past its checksum: the stored bytes
+    without their trailing 4-byte Fletcher-32. None where that cannot be done safely (another filter
+    on the dataset, a chunk not spanning whole rows, a short chunk)."""
+    try:
+        if ds.compression is not None or ds.shuffle or ds.scaleoffset is not None or tuple(ds.chunks[1:]) != tuple(ds.shape[1:]):
+            return None
+        _mask, raw = ds.id.read_direct_chunk((a,) + (0,) * (ds.ndim - 1))
+        n = int(np.prod(ds.chunks, dtype=np.int64)) * ds.dtype.itemsize
+        if len(raw) < n:
+            return None
+        return np.frombuffer(raw[:n], dtype=ds.dtype).reshape(ds.chunks)[: b - a].copy()
+    except Exception:  # noqa: BLE001 - h5py's low level raises many types on a damaged chunk index
+        return None
 
 
 def zero_chunks(a: np.ndarray, step: int) -> list[int]:
@@ -297,12 +324,12 @@ def _zero_run(path: Path, offset: int, size: int) -> tuple[int, int] | None:
 
 
 def find_damage(ds: h5py.Dataset, rows: int, chunks: ChunkMap, *, is_time: bool = False,
-                keep: bool = False) -> tuple[np.ndarray | None, list[BadChunk]]:
+                keep: bool = False, torn_tail: bool = False) -> tuple[np.ndarray | None, list[BadChunk]]:
     """Check every chunk of the first ``rows`` rows of ``ds``: those failing their checksum and those
     zeroed on disk (:meth:`ChunkMap.zeroed`; ``is_time``: ``ds`` holds run times, so a stored
     all-zero chunk is zeroed unless it is one row at 0 s). Returns the rows (``keep``; bad rows read as zeros, else
     None) and the bad chunks in row order. Blocks of at most :data:`READ_BLOCK_BYTES` are read at a
-    time when the rows are not kept."""
+    time when the rows are not kept. ``torn_tail``: as :func:`read_rows`."""
     step = int(ds.chunks[0]) if ds.chunks is not None else max(rows, 1)
     row_bytes = max(ds.dtype.itemsize * int(np.prod(ds.shape[1:], dtype=np.int64)), 1)
     block = rows if keep else max(step, READ_BLOCK_BYTES // row_bytes // step * step)
@@ -310,7 +337,7 @@ def find_damage(ds: h5py.Dataset, rows: int, chunks: ChunkMap, *, is_time: bool 
     bad: list[BadChunk] = []
     for start in range(0, rows, max(block, 1)):
         end = min(start + block, rows)
-        a, failed = read_rows(ds, start, end)
+        a, failed = read_rows(ds, start, end, torn_tail=torn_tail)
         bad += failed
         if ds.chunks is not None and (is_time or has_checksum(ds)):
             failed_rows = {b.row_start for b in failed}
@@ -367,12 +394,16 @@ def excluded_rows(stream: str, bad: list[BadChunk], t: np.ndarray | None, time_c
 def read_stream_rows(f: h5py.File, path: Path, stream: str, datasets: dict[str, h5py.Dataset], rows: int) -> StreamRows:
     """The first ``rows`` rows of the columns ``datasets`` (name -> dataset; ``time`` among them) of
     stream ``stream`` in open run file ``f`` at ``path``, without the rows of damaged chunks
-    (:func:`find_damage`), which are listed in :attr:`StreamRows.excluded`."""
+    (:func:`find_damage`), which are listed in :attr:`StreamRows.excluded`. In a file not finalised
+    (status ``running``: crashed or still written) the last chunk of each column is read past a
+    failing checksum (``torn_tail`` of :func:`read_rows`)."""
     chunks = ChunkMap(f, path)
+    status = f.attrs.get(layout.ATTR_STATUS, "")
+    torn_tail = (status.decode("utf-8", "replace") if isinstance(status, bytes) else str(status)) == layout.STATUS_RUNNING
     data: dict[str, np.ndarray] = {}
     bad: list[BadChunk] = []
     for name, ds in datasets.items():
-        a, found = find_damage(ds, rows, chunks, is_time=name == layout.TIME, keep=True)
+        a, found = find_damage(ds, rows, chunks, is_time=name == layout.TIME, keep=True, torn_tail=torn_tail)
         data[name] = a
         bad += found
     if not bad:

@@ -76,6 +76,37 @@ def reserve_path(run_path: Path) -> Path:
     return run_path.with_name(f".{run_path.name}{RESERVE_SUFFIX}")
 
 
+STALE_RESERVE_AFTER_S = 60.0
+"""A reserve whose run file has not been written for this long (s; a live recorder flushes at least
+once a second, its heartbeat) was left by a killed run (SIGKILL, power loss)."""
+
+
+def remove_stale_reserves(directory: Path, now_unix: float | None = None) -> list[Path]:
+    """Delete the reserve files in ``directory`` left by killed runs: those whose run file is gone
+    or was last written more than :data:`STALE_RESERVE_AFTER_S` ago. Returns what was deleted;
+    never raises (a leftover costs disk space, nothing else)."""
+    import time
+
+    now = time.time() if now_unix is None else now_unix
+    removed = []
+    try:
+        candidates = [p for p in Path(directory).iterdir() if p.name.startswith(".") and p.name.endswith(".h5" + RESERVE_SUFFIX)]
+    except OSError:
+        return removed
+    for reserve in candidates:
+        run_file = reserve.with_name(reserve.name[1:-len(RESERVE_SUFFIX)])
+        try:
+            if run_file.exists() and now - run_file.stat().st_mtime < STALE_RESERVE_AFTER_S:
+                continue
+            if reserve.is_symlink() or not reserve.is_file():
+                continue  # not ours
+            reserve.unlink()
+            removed.append(reserve)
+        except OSError:
+            continue
+    return removed
+
+
 class SpaceReserve:
     """Disk space held for finalising a run file, as a file of allocated blocks beside it.
 
@@ -97,6 +128,7 @@ class SpaceReserve:
         """Allocate ``size_bytes`` (bytes; capped at the file-size limit ``ulimit -f``) in a new
         reserve file beside ``run_path``. ``OSError`` (``ENOSPC`` …) if it cannot be allocated;
         then no reserve file is left."""
+        remove_stale_reserves(run_path.parent)
         reserve = cls(reserve_path(run_path))
         # the run file was just created under a new name: a reserve there is a killed run's leftover
         fd = os.open(reserve.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
