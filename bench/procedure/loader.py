@@ -73,6 +73,10 @@ class Interlock:
     location: Location
     stall_s: float | None = None
 
+    def beyond(self, value: float) -> bool:
+        """Whether ``value`` (in the signal's units) lies outside [minimum, maximum]."""
+        return (self.minimum is not None and value < self.minimum) or (self.maximum is not None and value > self.maximum)
+
 
 @dataclass
 class Procedure:

@@ -32,6 +32,16 @@ config, procedure: the narrowest) aborts the run whatever the procedure's interl
 controller is not controlling (runaway heater or cooler, failed sensor). Our choice [U]: above the
 overshoot of a controlled ramp, below damage."""
 
+ENVELOPE_COLUMNS = ("air_temp", "mount_temp")
+"""The chamber readings (degC) the lab's safety envelope watches."""
+
+
+def outside_envelope(value_c: float, low_c: float | None, high_c: float | None) -> bool:
+    """Whether a chamber temperature (degC) lies beyond the set-point limits ``low_c``..``high_c``
+    by more than :data:`CHAMBER_SAFETY_MARGIN_C`: the chamber is not under control."""
+    return (low_c is not None and value_c < low_c - CHAMBER_SAFETY_MARGIN_C) or (high_c is not None and value_c > high_c + CHAMBER_SAFETY_MARGIN_C)
+
+
 DEFAULT_POLL_INTERVAL_S = 1.0
 DEFAULT_RECONNECT_TIMEOUT_S = 30.0
 """Reconnection limit of an instrument the lab gives none for (s; the config's default)."""
@@ -195,7 +205,7 @@ class LabMonitor:
                 if inst in self.last and lock.signal.split(".")[1] in self.last[inst]:
                     self.trip(f"interlock {lock.name!r}: {lock.signal} has no valid reading (open sensor?)")
                 continue
-            if (lock.minimum is not None and v < lock.minimum) or (lock.maximum is not None and v > lock.maximum):
+            if lock.beyond(v):
                 lim = f"min {lock.minimum:g}" if lock.minimum is not None and v < lock.minimum else f"max {lock.maximum:g}"
                 self.trip(f"interlock {lock.name!r}: {lock.signal} = {v:.4g} beyond {lim}")
 
@@ -208,11 +218,11 @@ class LabMonitor:
         from bench.procedure.limits import effective_limits
 
         lo, hi, src = effective_limits("tvac", run.lab.config_limits.get(inst, {}), run.procedure.limits.get(inst, {}))["set_point"]
-        for col in ("air_temp", "mount_temp"):
+        for col in ENVELOPE_COLUMNS:
             v = values.get(col)
             if v is None or math.isnan(v):
                 continue
-            if (lo is not None and v < lo - CHAMBER_SAFETY_MARGIN_C) or (hi is not None and v > hi + CHAMBER_SAFETY_MARGIN_C):
+            if outside_envelope(v, lo, hi):
                 self.trip(f"lab safety: {inst}.{col} = {v:.1f} degC beyond the chamber limits "
                           f"{lo:g}..{hi:g} degC ({src}) by more than {CHAMBER_SAFETY_MARGIN_C:g} degC: the chamber is not under control")
 

@@ -178,8 +178,7 @@ def interlock_states(runner: Any) -> list[dict[str, Any]]:
                 item["state"] = "no reading"
             else:
                 item["value"] = float(v)
-                beyond = (lock.minimum is not None and v < lock.minimum) or (lock.maximum is not None and v > lock.maximum)
-                item["state"] = "beyond" if beyond else "ok"
+                item["state"] = "beyond" if lock.beyond(float(v)) else "ok"
         out.append(item)
     return out
 
@@ -192,7 +191,7 @@ def limit_states(runner: Any) -> list[dict[str, Any]]:
     what the steps command and were checked on every step before the run started (``checked``).
     Read from another thread: values only, never an instrument."""
     from bench.procedure.limits import LIMIT_UNITS, effective_limits
-    from bench.runner.monitor import CHAMBER_SAFETY_MARGIN_C
+    from bench.runner.monitor import CHAMBER_SAFETY_MARGIN_C, ENVELOPE_COLUMNS, outside_envelope
 
     out = []
     for inst, kind in runner.lab.kinds.items():
@@ -203,15 +202,13 @@ def limit_states(runner: Any) -> list[dict[str, Any]]:
                                     "value": None, "state": "checked"}
             if kind == "tvac" and quantity == "set_point":
                 item["watch"] = f"air and mount temperature within ± {CHAMBER_SAFETY_MARGIN_C:g} degC"
-                values = [v for v in (runner.monitor.last.get(inst, {}).get(c) for c in ("air_temp", "mount_temp"))
-                          if v is not None and v == v]
+                values = [v for v in (runner.monitor.last.get(inst, {}).get(c) for c in ENVELOPE_COLUMNS) if v is not None and v == v]
                 if not values:
                     item["state"] = "no reading"
                 else:
                     worst = max(values, key=lambda v: max((lo - v) if lo is not None else 0.0, (v - hi) if hi is not None else 0.0))
                     item["value"] = float(worst)
-                    beyond = (lo is not None and worst < lo - CHAMBER_SAFETY_MARGIN_C) or (hi is not None and worst > hi + CHAMBER_SAFETY_MARGIN_C)
-                    item["state"] = "beyond" if beyond else "ok"
+                    item["state"] = "beyond" if outside_envelope(worst, lo, hi) else "ok"
             out.append(item)
     return out
 
