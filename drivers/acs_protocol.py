@@ -157,12 +157,13 @@ def physical_to_raw(gyro_dps, accel_g, mag_ut, temp_degc):
     for name, values, scale in (("gyro", gyro_dps, GYRO_DPS_PER_LSB), ("accel", accel_g, ACCEL_G_PER_LSB),
                                 ("mag", mag_ut, MAG_UT_PER_LSB), ("temp", temp_degc, TEMP_DEGC_PER_LSB)):
         lo, hi = _RAW_LIMITS[name]
-        counts = np.rint(np.asarray(values, dtype=np.float64) / scale)
-        clipped = np.clip(counts, lo, hi)
+        counts = np.asarray(values, dtype=np.float64) / scale  # a new array: rounded and clipped in place
+        np.rint(counts, out=counts)
         if name != "temp":
-            s = np.any(counts != clipped, axis=1)
+            s = (~((counts >= lo) & (counts <= hi))).any(axis=1)  # NaN counts as saturated, as before clipping
             saturated = s if saturated is None else saturated | s
-        out.append(clipped.astype(np.int16))
+        np.clip(counts, lo, hi, out=counts)
+        out.append(counts.astype(np.int16))
     return (*out, saturated)
 
 

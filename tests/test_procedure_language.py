@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 
 from bench.config import load_config
@@ -158,6 +159,9 @@ def test_chamber_table_and_checks_run_on_the_simulated_lab(tmp_path: Path):
     assert by_name["air"]["outcome"] == "passed"
     assert by_name["tight"]["outcome"] == "failed"  # white noise 0.022 deg/s cannot be below 0.001
     assert not result.ok  # a failed check fails the run without aborting it
+    w = runner.windows.all["rate_+2"]  # statistics only of what the checks name; the rest only seen
+    assert set(w.stats) == {"acs_board.gyro.z", "tvac.air_temp"}
+    assert {"acs_board.gyro.x", "acs_board.temp", "tvac.air_temp", "rate_table.tilt"} <= set(w.seen)
     with h5py.File(path, "r") as f:
         tvac_rows = f["streams/tvac/monitor/time"].shape[0]
         assert abs(tvac_rows - result.run_time_s) <= 3  # polled at 1 Hz through the whole run
@@ -244,3 +248,24 @@ def test_run_refuses_an_unanswerable_prompt_on_hardware(tmp_path: Path):
     r = run_cli("run", str(proc), "--config", str(hw), "--runs-dir", str(tmp_path / "runs"), stdin=subprocess.DEVNULL)
     assert r.returncode == 2 and "p.yaml:5:5:" in r.stderr and "needs an operator" in r.stderr
     assert not (tmp_path / "runs").exists() or not list((tmp_path / "runs").glob("*.h5"))  # nothing started
+
+
+def test_windows_fold_only_the_watched_signals_with_the_same_statistics():
+    from bench.runner.windows import Windows
+
+    every, watched = Windows(), Windows({"a.x"})
+    rng = np.random.default_rng(3)
+    for ws in (every, watched):
+        ws.start("w", 0.0)
+    for k in range(5):
+        t = k + np.arange(10) / 10.0
+        y = rng.normal(size=10)
+        for ws in (every, watched):
+            ws.feed("a.x", t, y)
+            ws.feed("b.y", t, 2 * y)
+            ws.feed_one("c.z", float(k), float(y[0]))
+    for stat in ("mean", "std", "min", "max", "slope", "count"):
+        assert watched.statistic("a.x", stat, "w") == every.statistic("a.x", stat, "w")
+    assert every.statistic("b.y", "mean", "w")[0] == pytest.approx(2 * every.statistic("a.x", "mean", "w")[0])
+    with pytest.raises(ValueError, match=r"window 'w' has no b.y data \(signals: a.x, b.y, c.z\)"):
+        watched.statistic("b.y", "mean", "w")

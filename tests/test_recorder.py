@@ -576,19 +576,47 @@ def test_disk_nearly_full_refuses_flush_keeps_events(tmp_path: Path, monkeypatch
 
 
 def test_disk_filling_refuses_new_rows_at_append(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Rows are accepted only while they and the reserve fit: a refused append is not counted."""
-    rec = make_recorder(tmp_path)
+    """Rows are accepted only while they and the reserve fit: a refused append is not counted. A
+    free-space reading stands for appends that need no new chunk for SPACE_RECHECK_S of wall time."""
+    now = [0.0]
+    rec = make_recorder(tmp_path, wall_clock=lambda: now[0])
     key = rec.add_stream("daq", [Column("v", "V")])
     rec.start()
-    rec.append(key, np.arange(5.0), v=np.ones(5))
+    asked = []
     real = shutil.disk_usage
-    monkeypatch.setattr(writer_mod.shutil, "disk_usage", lambda p: real(p)._replace(free=600_000))
+    free = [10**12]
+    monkeypatch.setattr(writer_mod.shutil, "disk_usage", lambda p: asked.append(p) or real(p)._replace(free=free[0]))
+    rec.append(key, np.arange(5.0), v=np.ones(5))
+    assert len(asked) == 1
+    free[0] = 600_000  # the disk filled up meanwhile
+    now[0] += writer_mod.SPACE_RECHECK_S / 2
+    rec.append(key, np.arange(5.0, 6.0), v=np.ones(1))  # same chunk, reading still current: not asked again
+    assert len(asked) == 1 and rec.rows_written(key) == 6
+    now[0] += writer_mod.SPACE_RECHECK_S / 2
     with pytest.raises(RecorderError, match="disk nearly full: 0.6 MB free"):
-        rec.append(key, np.arange(5.0, 10.0), v=np.ones(5))
-    assert rec.rows_written(key) == 5
+        rec.append(key, np.arange(6.0, 10.0), v=np.ones(4))
+    assert len(asked) == 2 and rec.rows_written(key) == 6
     rec.close("aborted", "disk nearly full")
     with h5py.File(rec.path, "r") as f:
-        assert (f["streams/daq"].attrs["rows"], f["streams/daq"].attrs["rows_appended"]) == (5, 5)
+        assert (f["streams/daq"].attrs["rows"], f["streams/daq"].attrs["rows_appended"]) == (6, 6)
+
+
+def test_free_space_asked_again_when_a_new_chunk_is_needed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Within SPACE_RECHECK_S, an append whose rows need more chunks than the last reading covered
+    asks the disk again (and a flush always does)."""
+    now = [0.0]
+    rec = make_recorder(tmp_path, wall_clock=lambda: now[0])
+    key = rec.add_stream("daq", [Column("v", "V")])
+    rec.start()
+    real = shutil.disk_usage
+    free = [10**12]
+    monkeypatch.setattr(writer_mod.shutil, "disk_usage", lambda p: real(p)._replace(free=free[0]))
+    rec.append(key, np.arange(5.0), v=np.ones(5))
+    free[0] = rec.space_needed()  # exactly what the reading covered
+    rows = max(rec._stream(key).chunk_bytes.values()) // 8 + 1  # more than a chunk of float64: a new chunk
+    with pytest.raises(RecorderError, match="disk nearly full"):
+        rec.append(key, 5.0 + np.arange(rows), v=np.ones(rows))
+    assert rec.rows_written(key) == 5
 
 
 # ---- damaged files ---------------------------------------------------------------------------------
@@ -788,3 +816,79 @@ def test_a_torn_last_chunk_is_read_in_a_killed_file_and_excluded_in_a_finalised_
         assert got.excluded and got.excluded[0].row_start == 0 and got.data["v"].size == 0
     verify = subprocess.run([sys.executable, "-m", "bench", "inspect", "--verify", str(path)], capture_output=True, text=True, timeout=60)
     assert verify.returncode == 1 and "FAILED" in verify.stdout, verify.stdout + verify.stderr
+
+
+def test_append_row_stores_what_append_stores(tmp_path: Path) -> None:
+    """One row at a time (a polled reading) gives the same datasets as one-row arrays, interleaved
+    with batches in the order given; a value that is not a number, or a missing or unknown column,
+    is refused with the stream and column named and nothing counted."""
+    recs = []
+    for how in ("rows", "arrays"):
+        rec = make_recorder(tmp_path / how)
+        key = rec.add_stream("chamber", [Column("air_c", "degC"), Column("p", "Torr")], "monitor")
+        rec.start()
+        for i in range(5):
+            vals = {"air_c": 20.0 + i, "p": np.float32(1e-3 * i) if i % 2 else i}  # numpy and int values too
+            if how == "rows":
+                rec.append_row(key, float(i), vals)
+            else:
+                rec.append(key, np.array([float(i)]), **{k: np.array([v], dtype=float) for k, v in vals.items()})
+            if i == 2:
+                rec.flush()
+        rec.append(key, np.array([5.0, 6.0]), air_c=np.array([1.0, 2.0]), p=np.array([3.0, 4.0]))
+        if how == "rows":
+            rec.append_row(key, 7.0, {"air_c": 9.0, "p": 8.0})
+            for bad, match in (({"air_c": "21", "p": 1.0}, "column 'air_c' has a value of type str"),
+                               ({"air_c": 1.0}, "missing column.*p"),
+                               ({"air_c": 1.0, "p": 2.0, "x": 3.0}, "unknown column.*x")):
+                with pytest.raises(ValueError, match=match):
+                    rec.append_row(key, 8.0, bad)
+        else:
+            rec.append(key, np.array([7.0]), air_c=np.array([9.0]), p=np.array([8.0]))
+        assert rec.rows_written(key) == 8
+        rec.close("completed")
+        recs.append(rec.path)
+    with h5py.File(recs[0], "r") as a, h5py.File(recs[1], "r") as b:
+        for name in ("time", "air_c", "p"):
+            x, y = a[f"streams/chamber/monitor/{name}"], b[f"streams/chamber/monitor/{name}"]
+            assert x.dtype == y.dtype and list(x[:]) == list(y[:]) and x.shape == (8,)
+
+
+def test_read_traffic_is_the_summary_traffic_column_wise(tmp_path: Path) -> None:
+    """read_traffic gives the command and reply events of read_run_summary, in order, field for
+    field (kinds asked for only); a summary without traffic keeps every other event."""
+    from bench.record.reader import read_traffic
+
+    rec = make_recorder(tmp_path)
+    rec.start()
+    rng = np.random.default_rng(7)
+    for i in range(3000):  # more than one event chunk and one blob chunk
+        kind = ("command", "reply", "step_start", "reply")[i % 4]
+        rec.event(kind, ("tvac", "rate_table", "ünï")[i % 3], f"read {i}" if i % 5 else "", t_s=i / 10, step=i % 7 - 1,
+                  data=rng.bytes(int(rng.integers(0, 40))))
+        if i % 900 == 0:
+            rec.flush()
+    rec.close("completed")
+    events = read_run_summary(rec.path).events
+    for kinds in (("command", "reply"), ("command",)):
+        tr = read_traffic(rec.path, kinds)
+        want = [e for e in events if e.kind in kinds]
+        assert len(tr) == len(want) > 700
+        assert (tr.t_s, tr.kind, tr.source, tr.step, tr.message, tr.data) == tuple(
+            [getattr(e, f) for e in want] for f in ("t_s", "kind", "source", "step", "message", "data"))
+    rest = read_run_summary(rec.path, traffic=False).events
+    assert rest == [e for e in events if e.kind not in ("command", "reply")] and len(rest) == 750
+
+
+def test_stream_chunk_cache_holds_two_chunks(tmp_path: Path) -> None:
+    """Each stream dataset caches at most two of its chunks while written: a slow stream's finished
+    chunks are not kept (the file default, 1 MiB a dataset, made memory grow with run length)."""
+    rec = make_recorder(tmp_path)
+    key = rec.add_stream("chamber", [Column("air_c", "degC")], "monitor", rate_hz=1.0)
+    board = rec.add_stream("acs_board", ACS, rate_hz=100.0)
+    rec.start()
+    for k in (key, board):
+        for name, ds in rec._stream(k).datasets.items():
+            nbytes = ds.id.get_access_plist().get_chunk_cache()[1]
+            assert nbytes == 2 * rec._stream(k).chunk_bytes[name] <= 2 * 1024 * 1024, (k, name, nbytes)
+    rec.close("completed")

@@ -213,8 +213,8 @@ def read_run_summary(path: Path, *, stale_after_s: float = STALE_AFTER_S, now_un
     ``crashed``; ``now_unix`` (s since epoch) defaults to the current time. ``event_kinds``: decode
     only the events of these kinds (``events`` and ``steps`` then see only those; a long run logs
     every command and reply, hundreds of thousands of events); ``traffic=False`` decodes every event
-    except the instrument traffic. ``event_counts``, ``traffic`` and ``waiting_for`` always count
-    every event.
+    except the instrument traffic (:func:`read_traffic` reads it column-wise). ``event_counts``,
+    ``traffic`` and ``waiting_for`` always count every event.
     Raises :class:`InputError` if the file is not a readable bench run file or is of a newer format.
     """
     path = Path(path)
@@ -557,7 +557,10 @@ def _checked_rows(ds: h5py.Dataset, limit: int) -> int:
 
 
 def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
-               event_kinds: Collection[str] | None = None, traffic: bool = True) -> RunSummary:
+               event_kinds: Collection[str] | None = None, traffic: bool = True, *,
+               scan: "_EventScan | None" = None, damage: list[str] | None = None) -> RunSummary:
+    """The summary of the open run file ``f``; ``scan``: its events already scanned (with
+    ``damage``, what that scan found), else scanned here."""
     limit = _size_limit(path)
     attrs = {k: _plain(v) for k, v in f.attrs.items()}
     hb = read_heartbeat(f, limit)
@@ -576,8 +579,10 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
                 status, detail = layout.STATUS_CRASHED, f"no heartbeat since {since} ({age:.0f} s ago{at}); data up to that flush is in the file"
             else:
                 detail = f"being written: last heartbeat {since} ({age:.1f} s ago{at})"
-    damage: list[str] = []
-    scan = _scan_events(f, limit, damage, event_kinds)
+    if scan is None:
+        damage = []
+        scan = _scan_events(f, limit, damage, event_kinds)
+    damage = damage if damage is not None else []
     rows, blob = scan.rows, scan.blob
     events = _decode_events(rows, blob, event_kinds, traffic)
     streams = [_stream_summary(key, g, limit) for key, g in _stream_groups(f).items()]
@@ -829,7 +834,82 @@ def _decode_events(rows: np.ndarray, blob: bytes, kinds: Collection[str] | None 
         rows = rows[_kind_mask(rows, kinds)]
     if not traffic:
         rows = rows[~_kind_mask(rows, layout.TRAFFIC_EVENT_KINDS)]
-    return [_event_of(r, blob) for r in rows]
+    if isinstance(blob, _LazyBlob):  # a few events: each piece read as it is decoded
+        return [_event_of(r, blob) for r in rows]
+    return _decode_rows(rows, blob)
+
+
+def _decode_rows(rows: np.ndarray, blob: bytes) -> list[EventRow]:
+    """:func:`_event_of` of every row, column by column (an 8-h run has half a million events):
+    the same :class:`EventRow` values, kinds and sources decoded once per distinct name."""
+    return [EventRow(*e) for e in zip(*_event_columns(rows, blob))]
+
+
+def _event_columns(rows: np.ndarray, blob: bytes) -> tuple[list, ...]:
+    """The fields of :class:`EventRow` of every row, as lists in field order (run time s, wall
+    time s, kind, source, step, message, data): kinds and sources decoded once per distinct name,
+    messages and data cut from the blob as :func:`_slice` does."""
+    names = {k: k.decode("ascii", errors="replace") for k in set(rows["kind"].tolist())}
+    kinds = [names[k] for k in rows["kind"].tolist()]
+    names = {s: s.decode("utf-8", errors="replace") for s in set(rows["source"].tolist())}
+    sources = [names[s] for s in rows["source"].tolist()]
+    n_blob = len(blob)
+    messages = [blob[o:o + n].decode("utf-8", errors="replace") if o < n_blob and n > 0 else ""
+                for o, n in zip(rows["msg_off"].tolist(), rows["msg_len"].tolist())]
+    data = [blob[o:o + n] if o < n_blob and n > 0 else b"" for o, n in zip(rows["data_off"].tolist(), rows["data_len"].tolist())]
+    return rows["t_s"].tolist(), rows["wall_unix"].tolist(), kinds, sources, rows["step"].tolist(), messages, data
+
+
+@dataclass
+class Traffic:
+    """The instrument traffic of a run file (every ``command`` and ``reply`` event, in order),
+    column-wise: a long run has half a million of them, read without an object each."""
+
+    t_s: list[float]
+    """Run time of each event (s)."""
+    kind: list[str]
+    """``command`` or ``reply``."""
+    source: list[str]
+    """The instrument."""
+    step: list[int]
+    """0-based step index, :data:`layout.NO_STEP` outside steps."""
+    message: list[str]
+    """What the driver named the exchange (e.g. ``read 100``, ``SYNC``)."""
+    data: list[bytes]
+    """The bytes on the wire."""
+    damage: list[str] = field(default_factory=list)
+    """Events left out because their chunk failed its checksum, and why."""
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+def read_traffic(path: Path, kinds: Collection[str] = layout.TRAFFIC_EVENT_KINDS) -> Traffic:
+    """The traffic events of the run file at ``path`` (only ``kinds``: ``command``, ``reply``);
+    :class:`InputError` as :func:`read_run_summary`."""
+    path = Path(path)
+    damage: list[str] = []
+    with _open_run(path) as (f, _warnings):
+        rows, blob = _event_table(f, _size_limit(path), damage)
+        return _traffic_of_rows(rows, blob, kinds, damage)
+
+
+def read_summary_and_traffic(path: Path, kinds: Collection[str] = layout.TRAFFIC_EVENT_KINDS) -> tuple[RunSummary, Traffic]:
+    """``read_run_summary(path, traffic=False)`` and ``read_traffic(path, kinds)`` with the file
+    opened and its events read once (a replay needs both of a long run)."""
+    path = Path(path)
+    with _open_run(path) as (f, warnings):
+        damage: list[str] = []
+        scan = _scan_events(f, _size_limit(path), damage, None)
+        summary = _summarise(path, f, STALE_AFTER_S, time.time(), None, False, scan=scan, damage=damage)
+        summary.warnings = warnings + summary.warnings
+        return summary, _traffic_of_rows(scan.rows, scan.blob, kinds, list(damage))
+
+
+def _traffic_of_rows(rows: np.ndarray, blob: bytes, kinds: Collection[str], damage: list[str]) -> Traffic:
+    """:class:`Traffic` of the ``kinds`` events of ``rows`` (all read, with the whole blob)."""
+    t, _wall, kind, source, step, message, data = _event_columns(rows[_kind_mask(rows, kinds)], blob)
+    return Traffic(t, kind, source, step, message, data, damage)
 
 
 def _event_of(r: np.void, blob: bytes) -> EventRow:

@@ -7,7 +7,9 @@ Units: ``time`` in s of run time; nominal rates in Hz; sizes in bytes.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import h5py
 import numpy as np
@@ -97,8 +99,12 @@ def chunk_rows(c: Column, rate_hz: float | None) -> int:
 
 def _new_column(g: h5py.Group, c: Column, rate_hz: float | None) -> h5py.Dataset:
     shape = tuple(int(s) for s in c.shape)
-    ds = g.create_dataset(c.name, shape=(0, *shape), maxshape=(None, *shape), dtype=c.dtype,
-                          chunks=(chunk_rows(c, rate_hz), *shape), fletcher32=True)  # checked on every read: bench/record/verify.py
+    chunks = (chunk_rows(c, rate_hz), *shape)
+    # chunk cache of two chunks: the file's default (1 MiB a dataset) keeps every finished chunk of a
+    # slow stream (512-byte chunks of a 1-Hz monitor column: 36 h of them), so memory grew with run length
+    cache = 2 * int(np.prod(chunks, dtype=np.int64)) * np.dtype(c.dtype).itemsize
+    ds = g.create_dataset(c.name, shape=(0, *shape), maxshape=(None, *shape), dtype=c.dtype, chunks=chunks,
+                          fletcher32=True, rdcc_nbytes=cache)  # checked on every read: bench/record/verify.py
     ds.attrs[layout.ATTR_UNITS] = c.units
     return ds
 
@@ -120,6 +126,16 @@ def convert(a: np.ndarray, dt: np.dtype, key: str, name: str) -> np.ndarray:
     return np.array(a, dtype=dt, order="C", copy=True)
 
 
+def _number(v: object, key: str, name: str) -> float:
+    """``v`` as a float for a float column; ``ValueError`` for what is not a real number (as
+    :func:`convert`: text, complex, None)."""
+    if v.__class__ is float:
+        return v  # type: ignore[return-value]
+    if isinstance(v, (bool, int, np.integer, np.floating)) or (isinstance(v, np.ndarray) and v.shape == () and v.dtype.kind in "biuf"):
+        return float(v)  # type: ignore[arg-type]
+    raise ValueError(f"stream {key!r}: column {name!r} has a value of type {type(v).__name__}, expected a number")
+
+
 @dataclass
 class StreamTable:
     """One declared stream: its group and datasets (``time`` first, then the columns), the rows
@@ -139,6 +155,9 @@ class StreamTable:
     on_disk: int = 0  # rows written to the datasets
     appended: int = 0  # rows accepted by the recorder
     _need: tuple[int, int, int] = (0, 0, 0)  # (on_disk, pending_rows, need_bytes) of the last need_bytes()
+    row_values: list[list[float]] = field(default_factory=list)
+    """Rows given one at a time (:meth:`push_row`: time then every column, as Python floats), made
+    into arrays before the next batch, write or discard."""
 
     @classmethod
     def create(cls, f: h5py.File, key: str, columns: list[Column], dtypes: dict[str, np.dtype],
@@ -191,8 +210,41 @@ class StreamTable:
             batch[c.name] = convert(a, self.dtypes[c.name], self.key, c.name)
         return batch
 
+    @cached_property
+    def takes_rows(self) -> bool:
+        """Whether :meth:`push_row` takes rows of this stream: every column a scalar float."""
+        return all(not c.shape and self.dtypes[c.name].kind == "f" for c in self.columns)
+
+    def push_row(self, t_s: float, values: Mapping[str, float]) -> None:
+        """Buffer one row (run time ``t_s`` in s, a number for every column, float columns only:
+        :attr:`takes_rows`) without making arrays of it; ``ValueError`` as :meth:`prepare`."""
+        if len(values) != len(self.columns) or not all(c.name in values for c in self.columns):
+            self.prepare(np.array([t_s]), {k: np.array([v]) for k, v in values.items()})  # says what is wrong
+        row = [_number(t_s, self.key, layout.TIME)]
+        for c in self.columns:
+            row.append(_number(values[c.name], self.key, c.name))
+        self.row_values.append(row)
+        self.pending_rows += 1
+        self.pending_bytes += self.row_bytes
+
+    def pop_row(self) -> None:
+        """Take back the row :meth:`push_row` buffered last."""
+        self.row_values.pop()
+        self.pending_rows -= 1
+        self.pending_bytes -= self.row_bytes
+
+    def _rows_to_arrays(self) -> None:
+        """The rows :meth:`push_row` buffered, as one array per dataset at the end of ``pending``."""
+        if not self.row_values:
+            return
+        a = np.array(self.row_values, dtype=np.float64)
+        for i, name in enumerate(self.datasets):
+            self.pending[name].append(np.ascontiguousarray(a[:, i], dtype=self.dtypes[name]))
+        self.row_values.clear()
+
     def push(self, batch: dict[str, np.ndarray]) -> int:
         """Buffer a prepared batch for the next flush; returns its rows."""
+        self._rows_to_arrays()
         n = batch[layout.TIME].shape[0]
         for name, a in batch.items():
             self.pending[name].append(a)
@@ -224,6 +276,7 @@ class StreamTable:
         n = self.pending_rows
         if n == 0:
             return
+        self._rows_to_arrays()
         new = self.on_disk + n
         for name, ds in self.datasets.items():
             parts = self.pending[name]
@@ -239,6 +292,7 @@ class StreamTable:
         """Drop the buffered rows (after a refused flush whose rows did not fit)."""
         for parts in self.pending.values():
             parts.clear()
+        self.row_values.clear()
         self.pending_rows = self.pending_bytes = 0
 
     def finalise(self, f: h5py.File) -> int:

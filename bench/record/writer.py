@@ -22,6 +22,7 @@ seconds since the Unix epoch (``wall_unix``, heartbeat), sizes in bytes.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import time
@@ -52,6 +53,11 @@ __all__ = [
 
 FLUSH_SLACK_S = 1e-6
 """tick() tolerance (s) so that ten 0.1-s steps count as 1 s despite rounding."""
+SPACE_RECHECK_S = 0.1
+"""Wall time (s) one free-space reading stands for the appends after it whose need has not grown
+(:meth:`RunRecorder.append`): the disk is asked again when a new chunk would be needed, after every
+flush, when :attr:`RunRecorder.free_bytes` is replaced, and at least this often. An 8-h dry-run
+appends 14,400 monitor rows an hour of run time; asking the file system at each was 8 % of it."""
 FINALISE_MIN_BYTES = 64 * 1024
 """Free space (bytes) below which the final status is not written: reopening the file read-write
 and failing to close it would leave a file HDF5 refuses to open; without it the file stays as
@@ -84,10 +90,22 @@ class RunRecorder:
         self._state = "open"  # open | released (SWMR file closed, status not final) | closed
         self._failure = ""  # reason of the first failed or refused write; no writes after it
         self._broken = False  # an HDF5 write failed: handles abandoned, status cannot be finalised
-        self.free_bytes: Callable[[Path], int] = lambda d: shutil.disk_usage(d).free
-        """Free space (bytes) of a directory; a seam for fault injection (``disk_full``)."""
+        self._free_bytes: Callable[[Path], int] = lambda d: shutil.disk_usage(d).free
+        self._space_checked_at = -math.inf  # wall time of the last free-space check that passed
+        self._checked_parts: dict[str, int] = {}  # stream key (and "" for the events) -> its bytes needed at that check
         self._run_time_s = 0.0
         self._last_flush = wall_clock()
+
+    @property
+    def free_bytes(self) -> Callable[[Path], int]:
+        """Free space (bytes) of a directory; a seam for fault injection (``disk_full``): setting it
+        makes the next append ask again."""
+        return self._free_bytes
+
+    @free_bytes.setter
+    def free_bytes(self, fn: Callable[[Path], int]) -> None:
+        self._free_bytes = fn
+        self._forget_space_check()
 
     # ---- creation -------------------------------------------------------------------------
     @classmethod
@@ -196,14 +214,40 @@ class RunRecorder:
         if n == 0:
             return
         st.push(batch)
+        self._accept(st, n, float(batch[layout.TIME][-1]), lambda: st.pop(batch))
+
+    def append_row(self, stream_key: str, t_s: float, values: Mapping[str, float]) -> None:
+        """Append one row: run time ``t_s`` (s) and a number for every column (a polled
+        instrument's reading). Same checks and guarantees as :meth:`append` with one-row arrays,
+        without making them: a stream of scalar float columns buffers the numbers and makes the
+        arrays at the next flush (others go through :meth:`append`)."""
+        self._require_open()
+        st = self._stream(stream_key)
+        if not st.takes_rows:
+            self.append(stream_key, np.array([t_s]), **{k: np.array([v]) for k, v in values.items()})
+            return
+        st.push_row(t_s, values)
+        self._accept(st, 1, float(t_s), st.pop_row)
+
+    def _accept(self, st: StreamTable, n: int, t_last_s: float, undo: Callable[[], None]) -> None:
+        """Count ``n`` rows just buffered in ``st`` (the last at run time ``t_last_s``, s) if they and
+        the reserve fit (else ``undo()`` and :class:`RecorderError`: nothing accepted is lost); write
+        the stream's buffer once it is large. The disk is asked again only when the need grew or the
+        last reading is :data:`SPACE_RECHECK_S` old. The need of every stream and of the events can
+        only have grown past what the last check covered through an append (which asks) or an event,
+        so comparing this stream's and the events' needs with that check's tells whether the total
+        grew, without summing over every stream at every append."""
         if self._started:
-            try:
-                self._check_space()  # accept rows only while they (and the reserve) fit: nothing accepted is lost
-            except RecorderError:
-                st.pop(batch)
-                raise
+            parts = self._checked_parts
+            if (st.need_bytes() > parts.get(st.key, -1) or self._events.need_bytes() > parts.get("", -1)
+                    or self._wall_clock() - self._space_checked_at >= SPACE_RECHECK_S):
+                try:
+                    self._check_space()
+                except RecorderError:
+                    undo()
+                    raise
         st.appended += n
-        self._note_run_time(float(batch[layout.TIME][-1]))
+        self._note_run_time(t_last_s)
         if st.pending_bytes >= BUFFER_SPILL_BYTES:
             self._check_space()
             with self._io():
@@ -222,7 +266,8 @@ class RunRecorder:
         if self._broken:
             raise RecorderError(f"writing {self.path} failed earlier: {self._failure}")
         self._events.add(kind, source, message, t_s=t_s, step=step, data=data)
-        self._note_run_time(t_s)
+        if t_s > self._run_time_s and t_s != math.inf:  # _note_run_time inline: a run logs tens of events a second
+            self._run_time_s = float(t_s)
 
     def tick(self, run_time_s: float | None = None) -> None:
         """Note the current run time (s) and flush if ``flush_interval_s`` of wall time has passed
@@ -247,6 +292,7 @@ class RunRecorder:
                 st.write()
             self._write_events_and_heartbeat()
         self._last_flush = self._wall_clock()
+        self._forget_space_check()  # the flush took some of the space read
 
     def rows_written(self, stream_key: str) -> int:
         """Rows appended to ``stream_key`` so far (accepted by :meth:`append`, flushed or not)."""
@@ -362,8 +408,8 @@ class RunRecorder:
 
     def _note_run_time(self, t_s: float) -> None:
         """The run has got at least to ``t_s`` (s); written to the heartbeat at the next flush."""
-        if np.isfinite(t_s):
-            self._run_time_s = max(self._run_time_s, float(t_s))
+        if t_s > self._run_time_s and t_s != math.inf:  # NaN compares false
+            self._run_time_s = float(t_s)
 
     @contextmanager
     def _io(self) -> Iterator[None]:
@@ -477,6 +523,11 @@ class RunRecorder:
                 "every row written and reads as crashed"
             )
 
+    def _forget_space_check(self) -> None:
+        """The next append asks the disk again."""
+        self._space_checked_at = -math.inf
+        self._checked_parts = {}
+
     def _check_space(self) -> None:
         """Refuse a flush that might not fit on the disk or under the file-size limit (``ulimit -f``).
 
@@ -485,8 +536,13 @@ class RunRecorder:
         of the chunks the flush allocates (HDF5 allocates whole chunks) plus 1 MiB for metadata
         and finalising.
         """
-        problem = self._space_problem(self.space_needed())
-        if problem:
+        need = self.space_needed()
+        problem = self._space_problem(need)
+        if not problem:
+            self._space_checked_at = self._wall_clock()
+            self._checked_parts = {key: st.need_bytes() for key, st in self._streams.items()}
+            self._checked_parts[""] = self._events.need_bytes()
+        else:
             self._failure = f"{problem}; recording stopped while the file is still consistent"
             raise RecorderError(f"writing {self.path} failed: {self._failure}")
 

@@ -187,7 +187,7 @@ class AcsBoardReplay(ReplaySerial):
     def _advance(self, t_s: float) -> None:
         if self._cur is not None:
             a, b = self._cur
-            if a < b:
+            if a < b and self._emit_t[a] <= t_s + 1e-6:  # a row is due (the driver asks far more often than rows come)
                 j = a + int(np.searchsorted(self._emit_t[a:b], t_s + 1e-6, side="right"))
                 if j > a:
                     # replies due before these frames go first
@@ -358,9 +358,8 @@ class CanReplayNode(Backend):
     def go_live(self) -> None:
         super().go_live()
         if self.sync:
-            bus = SyncBus(self.channel)
-            bus.add_listener(lambda msg: self._answer(bus, msg))
-            self._bus = bus
+            self._bus = SyncBus(self.channel)
+            self._bus.add_listener(self._on_frame)  # a bound method: no cycle through the bus (freed when closed)
             return
         self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
         self._thread = threading.Thread(target=self._serve, name=f"replay-can-{self.label}", daemon=True)
@@ -372,6 +371,11 @@ class CanReplayNode(Backend):
             msg = bus.recv(0.05)
             if msg is not None:
                 self._answer(bus, msg)
+
+    def _on_frame(self, msg: can.Message) -> None:
+        bus = self._bus
+        if bus is not None:
+            self._answer(bus, msg)
 
     def _answer(self, bus: can.BusABC, msg: can.Message) -> None:
         """Send the recorded replies to the driver's frame ``msg``."""

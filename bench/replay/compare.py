@@ -15,7 +15,7 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.record import layout
-from bench.record.reader import RunSummary, open_run_file
+from bench.record.reader import RunSummary, Traffic, open_run_file
 
 TIME_TOL_S = 1e-6
 REL_TOL = 1e-9
@@ -75,42 +75,73 @@ def _cmd_text(name: str, data: bytes, step: int, t: float) -> str:
     return f"{name} [{data.hex(' ')}] in step {step + 1} at {t:.6f} s"
 
 
-def compare(src: RunSummary, rep: RunSummary, drivers: dict[str, str], *, timed: bool, prefix_only: bool,
-            skip_prelude: bool) -> list[Divergence]:
-    """Every divergence, ordered by run time. ``timed``: compare event times (dry-run sources).
-    ``prefix_only``: the source stopped without an end (crashed): compare what it holds.
-    ``skip_prelude``: ignore replay traffic before ``lab_open`` (the source lacks it)."""
-    from bench.replay.recording import link_of
+def commands_by_link(traffic: Traffic, drivers: dict[str, str]) -> dict[tuple[str, str], Commands]:
+    """The commands of ``traffic`` per (instrument, link) (:func:`bench.replay.recording.link_of`),
+    in order; instruments not in ``drivers`` (instrument -> driver name) left out."""
+    from bench.replay.recording import link_keys
 
+    rows: dict[tuple[str, str], list[int]] = {}
+    for i, (key, kind) in enumerate(zip(link_keys(traffic, drivers), traffic.kind)):
+        if key is not None and kind == "command":
+            got = rows.get(key)
+            if got is None:
+                got = rows[key] = []
+            got.append(i)
+    return {key: Commands([traffic.t_s[i] for i in ii], [traffic.step[i] for i in ii], [traffic.message[i] for i in ii],
+                          [traffic.data[i] for i in ii]) for key, ii in rows.items()}
+
+
+@dataclass
+class Commands:
+    """The commands of one link, column-wise: run times (s), steps, names, bytes."""
+
+    t_s: list[float]
+    step: list[int]
+    message: list[str]
+    data: list[bytes]
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def same(self, other: "Commands", n: int, timed: bool) -> bool:
+        """Whether the first ``n`` commands of both are the same (names, bytes, steps, and run
+        times within :data:`TIME_TOL_S` if ``timed``): whole lists compared at once."""
+        if len(self) < n or len(other) < n:
+            return False
+        if self.message[:n] != other.message[:n] or self.data[:n] != other.data[:n] or self.step[:n] != other.step[:n]:
+            return False
+        return not timed or not n or bool(np.all(np.abs(np.subtract(self.t_s[:n], other.t_s[:n])) <= TIME_TOL_S))
+
+
+def compare(src: RunSummary, rep: RunSummary, src_traffic: Traffic, rep_traffic: Traffic, drivers: dict[str, str], *,
+            timed: bool, prefix_only: bool) -> list[Divergence]:
+    """Every divergence, ordered by run time. ``src_traffic``/``rep_traffic``: the commands of
+    source and replay (:func:`bench.record.reader.read_traffic`). ``timed``: compare event times
+    (dry-run sources). ``prefix_only``: the source stopped without an end (crashed): compare what
+    it holds."""
     names = {s.index: s.name for s in src.steps} | {s.index: s.name for s in rep.steps}
     out: list[Divergence] = []
 
-    def cmds(summary: RunSummary, skip: bool) -> dict[tuple[str, str], list]:
-        d: dict[tuple[str, str], list] = {}
-        seen_open = not skip
-        for e in summary.events:
-            if e.kind == "lab_open":
-                seen_open = True
-            if e.kind != "command" or e.source not in drivers or not seen_open:
-                continue
-            d.setdefault((e.source, link_of(drivers[e.source], e.message)), []).append(e)
-        return d
-
-    a, b = cmds(src, False), cmds(rep, skip_prelude)
+    a, b = commands_by_link(src_traffic, drivers), commands_by_link(rep_traffic, drivers)
+    none = Commands([], [], [], [])
     for key in sorted(set(a) | set(b)):
-        ea, eb = a.get(key, []), b.get(key, [])
-        n = len(ea) if prefix_only else max(len(ea), len(eb))
+        ca, cb = a.get(key, none), b.get(key, none)
+        n = len(ca) if prefix_only else max(len(ca), len(cb))
+        if ca.same(cb, n, timed):
+            continue
         for i in range(n):
-            x = ea[i] if i < len(ea) else None
-            y = eb[i] if i < len(eb) else None
+            x = i if i < len(ca) else None
+            y = i if i < len(cb) else None
             if x is not None and y is not None:
-                if x.message == y.message and x.data == y.data and x.step == y.step and (not timed or abs(x.t_s - y.t_s) <= TIME_TOL_S):
+                if (ca.message[x] == cb.message[y] and ca.data[x] == cb.data[y] and ca.step[x] == cb.step[y]
+                        and (not timed or abs(ca.t_s[x] - cb.t_s[y]) <= TIME_TOL_S)):
                     continue
-            ref = x or y
+            ref, j = (ca, x) if x is not None else (cb, y)
             out.append(Divergence(
-                ref.t_s if x is None or y is None else min(x.t_s, y.t_s), "command", ref.step, names.get(ref.step, ""), " ".join(key).strip(),
-                _cmd_text(x.message, x.data, x.step, x.t_s) if x else "(no more commands recorded)",
-                _cmd_text(y.message, y.data, y.step, y.t_s) if y else "(the replay sent no such command)"))
+                ref.t_s[j] if x is None or y is None else min(ca.t_s[x], cb.t_s[y]), "command", ref.step[j], names.get(ref.step[j], ""),
+                " ".join(key).strip(),
+                _cmd_text(ca.message[x], ca.data[x], ca.step[x], ca.t_s[x]) if x is not None else "(no more commands recorded)",
+                _cmd_text(cb.message[y], cb.data[y], cb.step[y], cb.t_s[y]) if y is not None else "(the replay sent no such command)"))
 
     sa, sb = {s.index: s for s in src.steps}, {s.index: s for s in rep.steps}
     for i in sorted(set(sa) | set(sb)):
@@ -155,7 +186,7 @@ def compare(src: RunSummary, rep: RunSummary, drivers: dict[str, str], *, timed:
         out.append(Divergence(ref[0], f"check {name}", ref[1], names.get(ref[1], ""), "", fmt(x), fmt(y)))
 
     if not prefix_only and (src.status, src.abort_reason) != (rep.status, rep.abort_reason):
-        t = max((e.t_s for e in rep.events), default=0.0)
+        t = max(max((e.t_s for e in rep.events), default=0.0), max(rep_traffic.t_s, default=0.0))
         out.append(Divergence(t, "end of run", -1, "", "", f"{src.status}" + (f": {src.abort_reason}" if src.abort_reason else ""),
                               f"{rep.status}" + (f": {rep.abort_reason}" if rep.abort_reason else "")))
     out.sort(key=lambda d: (d.t_s, 0 if d.what == "command" else 1))
@@ -213,12 +244,16 @@ def _first_difference(src_path, ga, gb, key: str, rows: int, timed: bool, got: s
             return (float(ga[layout.TIME][0]) if rows else 0.0), name, 0, "(a column)", f"(no such column in the {got})"
         for i in range(0, rows, block):
             j = min(i + block, rows)
+            rb = gb[name][i:j]
             try:
-                xa = np.asarray(ga[name][i:j], dtype=float)
+                ra = ga[name][i:j]
+                if ra.dtype == rb.dtype and ra.shape == rb.shape and np.array_equal(ra, rb):
+                    continue  # equal values (a faithful replay): no tolerance needed
+                xa = np.asarray(ra, dtype=float)
             except Exception as exc:  # noqa: BLE001 - a damaged chunk (checksum) or an unreadable dtype
                 raise InputError(f"{src_path}: cannot be replayed: stream {key} column {name} rows {i}..{j - 1} cannot be read "
                                  f"({' '.join(str(exc).split())[:200]})") from None
-            xb = np.asarray(gb[name][i:j], dtype=float)
+            xb = np.asarray(rb, dtype=float)
             if xa.shape != xb.shape:
                 return float(ga[layout.TIME][i]), name, i, f"shape {xa.shape[1:]}", f"shape {xb.shape[1:]}"
             if not np.allclose(xa, xb, rtol=REL_TOL, atol=ABS_TOL, equal_nan=True):

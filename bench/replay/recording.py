@@ -17,25 +17,29 @@ import hashlib
 import json
 import os
 import re
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
+from typing import Callable
 
 import numpy as np
 
 from bench.errors import InputError
 from bench.inputs import CONFIG_ROOTS, YAML_LIMIT_BYTES, confined_path, read_input_bytes
-from bench.record import layout, read_run_summary, read_stream
-from bench.record.reader import EventRow, RunSummary, read_format_version
+from bench.record import layout, read_stream
+from bench.record.reader import EventRow, RunSummary, Traffic, read_format_version, read_summary_and_traffic
 from bench.replay.workspace import Workspace, checked_path, shown
 from bench.yamlsrc import parse_yaml
 
+TWO_LINK_DRIVER = "tvac"
+"""The driver of an instrument reached over two links (the chamber: Modbus controller, serial gauge)."""
 MODBUS_RE = re.compile(r"^(read|write) \d+")
 """Event names of the chamber's Modbus controller; every other ``tvac`` event is its serial gauge."""
 
 REPLAY_NEEDS = "the run's parameters and sub-procedures ('procedure' event)"
 
 
-@dataclass
+@dataclass(slots=True)
 class Exchange:
     """One recorded command and the replies that followed it on its link."""
 
@@ -46,10 +50,26 @@ class Exchange:
     replies: list[tuple[float, str, bytes]] = field(default_factory=list)
 
 
+def link_keys(traffic: Traffic, drivers: dict[str, str]) -> list[tuple[str, str] | None]:
+    """The (instrument, link) of every traffic event (:func:`link_of`), None for an instrument not
+    in ``drivers`` (instrument -> driver name); worked out once per distinct (instrument, message)."""
+    one_link = {s: (s, "") for s in set(traffic.source) if s in drivers and drivers[s] != TWO_LINK_DRIVER}  # link_of is "" for them
+    known: dict[tuple[str, str], tuple[str, str] | None] = {}
+    out = []
+    for source, message in zip(traffic.source, traffic.message):
+        key = one_link.get(source)
+        if key is None:
+            key = known.get((source, message), False)
+            if key is False:
+                key = known[(source, message)] = (source, link_of(drivers[source], message)) if source in drivers else None
+        out.append(key)
+    return out
+
+
 def link_of(driver: str, message: str) -> str:
     """Which link of an instrument an event belongs to: ``controller`` / ``gauge`` for the chamber
     (told apart by the event names: Modbus events are ``read N`` / ``write N``), ``""`` otherwise."""
-    if driver == "tvac":
+    if driver == TWO_LINK_DRIVER:
         return "controller" if MODBUS_RE.match(message) else "gauge"
     return ""
 
@@ -60,7 +80,11 @@ class Recording:
 
     path: Path
     summary: RunSummary
-    sha256: str
+    """The file's summary; its ``events`` without the traffic (that is :attr:`traffic`)."""
+    traffic: Traffic
+    """Every command and reply, column-wise."""
+    digest: Callable[[], str]
+    """The file's SHA-256 (hex), hashed in a thread while the rest is read (:func:`file_sha256_soon`)."""
     mode: str
     status: str
     parameters: dict
@@ -85,18 +109,25 @@ class Recording:
     recorded path -> text, each path checked; None for a file recorded before bench kept them
     (then only the project's ``configs/`` provides them, :func:`config_file`)."""
 
+    @property
+    def sha256(self) -> str:
+        """Hex SHA-256 of the file's bytes."""
+        return self.digest()
+
     def links(self, drivers: dict[str, str]) -> dict[tuple[str, str], list[Exchange]]:
         """(instrument, link) -> exchanges in order. ``drivers``: instrument -> driver name."""
         out: dict[tuple[str, str], list[Exchange]] = {}
-        for e in self.summary.events:
-            if e.kind not in ("command", "reply") or e.source not in drivers:
+        tr = self.traffic
+        for key, kind, t, step, message, data in zip(link_keys(tr, drivers), tr.kind, tr.t_s, tr.step, tr.message, tr.data):
+            if key is None:
                 continue
-            key = (e.source, link_of(drivers[e.source], e.message))
-            seq = out.setdefault(key, [])
-            if e.kind == "command":
-                seq.append(Exchange(e.t_s, e.step, e.message, e.data))
+            seq = out.get(key)
+            if seq is None:
+                seq = out[key] = []
+            if kind == "command":
+                seq.append(Exchange(t, step, message, data, []))
             elif seq:
-                seq[-1].replies.append((e.t_s, e.message, e.data))
+                seq[-1].replies.append((t, message, data))
         return out
 
     def stream(self, key: str) -> dict[str, np.ndarray] | None:
@@ -111,7 +142,8 @@ def load_recording(path: Path) -> Recording:
     (they are data to the replay: see :mod:`bench.replay.workspace`)."""
     path = Path(path)
     _check_version(path)
-    summary = read_run_summary(path)
+    digest = file_sha256_soon(path)
+    summary, traffic = read_summary_and_traffic(path)
     _check_names(path, summary)
     proc = [e for e in summary.events if e.kind == "procedure"]
     if not proc:
@@ -128,9 +160,9 @@ def load_recording(path: Path) -> Recording:
                 answers.append((str(a["id"]), str(a["answer"]), str(a.get("source", "file"))))
             except (json.JSONDecodeError, KeyError, TypeError, RecursionError):
                 continue
-    end = max((e.t_s for e in summary.events), default=0.0)
+    end = max(max((e.t_s for e in summary.events), default=0.0), max(traffic.t_s, default=0.0))
     return Recording(
-        path=path, summary=summary, sha256=file_sha256(path), mode=str(summary.attrs.get(layout.ATTR_MODE, "")), status=summary.status,
+        path=path, summary=summary, traffic=traffic, digest=digest, mode=str(summary.attrs.get(layout.ATTR_MODE, "")), status=summary.status,
         parameters=info["parameters"], sources=info["sources"], answers=answers,
         prelude_recorded=any(e.kind == "lab_open" for e in summary.events), end_t_s=end,
         clock=str(info.get("clock") or ("wall" if summary.attrs.get(layout.ATTR_MODE) == layout.MODE_HARDWARE else "virtual")),
@@ -239,6 +271,30 @@ def file_sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def file_sha256_soon(path: Path) -> Callable[[], str]:
+    """:func:`file_sha256` of ``path`` started in a thread (hashing and reading release the GIL,
+    so an 8-h run file's 400 MB are hashed on another core while the replay reads the events);
+    the returned function waits for it (raising what it raised)."""
+    box: dict[str, object] = {}
+
+    def work() -> None:
+        try:
+            box["hex"] = file_sha256(path)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            box["error"] = exc
+
+    th = threading.Thread(target=work, name=f"sha256 {path.name}", daemon=True)
+    th.start()
+
+    def result() -> str:
+        th.join()
+        if "error" in box:
+            raise box["error"]  # type: ignore[misc]
+        return box["hex"]  # type: ignore[return-value]
+
+    return result
 
 
 # ---- the recorded texts as files, in the replay's private directory -------------------------------

@@ -127,7 +127,8 @@ class Runner:
         self.abort_reason = ""
         self.current_step = -1
         self.outcomes: list[StepOutcome] = []
-        self.windows = Windows()
+        self.windows = Windows({s.params.get("signal") for s in procedure.steps if s.type == "check"} - {None})
+        """Recording windows; statistics kept for the signals the procedure's checks name."""
         self.ingest = StreamIngest(recorder, self.clock, self.windows, lambda: self.current_step)
         """The streaming instruments (sensor boards): frames into the run file and the windows."""
         self.monitor = LabMonitor(self)

@@ -13,7 +13,6 @@ import json
 import math
 from typing import TYPE_CHECKING, Callable
 
-import numpy as np
 
 from bench.errors import KNOWN_ERRORS, BenchError, DeviceFault, InstrumentError
 from bench.procedure.signals import parse_signal
@@ -72,6 +71,10 @@ class LabMonitor:
         self.due: dict[str, float] = {}
         """Instrument -> run time of its next reading (s)."""
         self.last: dict[str, dict[str, float]] = {}
+        self.envelopes: dict[str, tuple] = {}
+        self.signals: dict[str, dict[str, str]] = {}
+        """Instrument -> column -> its signal name (``INSTRUMENT.COLUMN``), made once."""
+        """Chamber -> its set-point limits (low, high degC, source), read at its first reading."""
 
     def declare(self, name: str, drv: Polled) -> None:
         """Declare ``/streams/NAME/monitor`` with the driver's columns; first reading due at 0 s."""
@@ -98,11 +101,17 @@ class LabMonitor:
         """Read instrument ``name`` now (run time ``t``, s)."""
         run = self.run
         values = run.lab.instruments[name].monitor()
-        run.rec.append(self.keys[name], np.array([t]), **{k: np.array([v], dtype=float) for k, v in values.items()})
+        run.rec.append_row(self.keys[name], t, values)
         self.last[name] = values
         if run.windows.any_open:
+            signals = self.signals.get(name)
+            if signals is None:
+                signals = self.signals[name] = {}
             for col, v in values.items():
-                run.windows.feed_one(f"{name}.{col}", t, float(v))
+                sig = signals.get(col)
+                if sig is None:
+                    sig = signals[col] = f"{name}.{col}"
+                run.windows.feed_one(sig, t, float(v))
         self.check_interlocks(name)
         self.check_lab_safety(name, values)
 
@@ -215,9 +224,13 @@ class LabMonitor:
         run = self.run
         if run.lab.kinds.get(inst) != "tvac":
             return
-        from bench.procedure.limits import effective_limits
+        limits = self.envelopes.get(inst)
+        if limits is None:
+            from bench.procedure.limits import effective_limits
 
-        lo, hi, src = effective_limits("tvac", run.lab.config_limits.get(inst, {}), run.procedure.limits.get(inst, {}))["set_point"]
+            limits = self.envelopes[inst] = effective_limits("tvac", run.lab.config_limits.get(inst, {}),
+                                                             run.procedure.limits.get(inst, {}))["set_point"]
+        lo, hi, src = limits
         for col in ENVELOPE_COLUMNS:
             v = values.get(col)
             if v is None or math.isnan(v):

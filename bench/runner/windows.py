@@ -3,7 +3,9 @@
 While a window is open, every sample of every signal that arrives (board frames, polled
 readings) is folded into running sums: count, sum, sum of squares, min, max and the sums a
 least-squares slope needs. Memory is constant per window and signal, whatever the run length, so
-a check at the end of an 8-hour ramp costs nothing.
+a check at the end of an 8-hour ramp costs nothing. Only the signals the procedure's checks name
+are folded (the procedure is data: its checks are known before it runs); of the others a window
+keeps the names it saw, for the message of a check that finds no data.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import fnmatch
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Collection
 
 import numpy as np
 
@@ -97,6 +99,8 @@ class Window:
     meta: dict[str, Any] = field(default_factory=dict)
     t_end_s: float | None = None
     stats: dict[str, RunningStats] = field(default_factory=dict)
+    seen: dict[str, None] = field(default_factory=dict)
+    """Every signal fed while open, in order (folded into ``stats`` or not)."""
 
     @property
     def open(self) -> bool:
@@ -106,9 +110,11 @@ class Window:
 class Windows:
     """All windows of a run: opened and closed by record steps, fed by the runner."""
 
-    def __init__(self) -> None:
+    def __init__(self, watched: Collection[str] | None = None) -> None:
+        """``watched``: the signals whose statistics are kept (a check names them); None: all."""
         self.all: dict[str, Window] = {}
         self._open: list[Window] = []
+        self.watched = None if watched is None else frozenset(watched)
 
     def start(self, name: str, t_s: float, meta: dict[str, Any] | None = None) -> Window:
         """Open window ``name`` at run time ``t_s``; a name used again starts a fresh window."""
@@ -129,16 +135,22 @@ class Windows:
 
     def feed(self, signal: str, t: np.ndarray, y: np.ndarray) -> None:
         """Samples of ``signal`` (run times ``t`` s) into every open window."""
+        fold = self.watched is None or signal in self.watched
         for w in self._open:
-            w.stats.setdefault(signal, RunningStats()).add(np.asarray(t, dtype=float), np.asarray(y, dtype=float))
+            w.seen[signal] = None
+            if fold:
+                w.stats.setdefault(signal, RunningStats()).add(np.asarray(t, dtype=float), np.asarray(y, dtype=float))
 
     def feed_one(self, signal: str, t: float, y: float) -> None:
         """One sample of ``signal`` at run time ``t`` (s) into every open window."""
+        fold = self.watched is None or signal in self.watched
         for w in self._open:
-            st = w.stats.get(signal)
-            if st is None:
-                st = w.stats[signal] = RunningStats()
-            st.add_one(t, y)
+            w.seen[signal] = None
+            if fold:
+                st = w.stats.get(signal)
+                if st is None:
+                    st = w.stats[signal] = RunningStats()
+                st.add_one(t, y)
 
     def matching(self, pattern: str) -> list[Window]:
         """Closed or open windows whose name matches ``pattern`` (``*`` wildcards), in start order."""
@@ -170,5 +182,5 @@ class Windows:
         w = windows[0]
         st = w.stats.get(signal)
         if st is None:
-            raise ValueError(f"window {w.name!r} has no {signal} data (signals: {', '.join(w.stats) or 'none'})")
+            raise ValueError(f"window {w.name!r} has no {signal} data (signals: {', '.join(w.seen) or 'none'})")
         return st.value(statistic), f"{st.n} samples in window {w.name!r}"
