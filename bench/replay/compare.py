@@ -75,13 +75,14 @@ def _cmd_text(name: str, data: bytes, step: int, t: float) -> str:
     return f"{name} [{data.hex(' ')}] in step {step + 1} at {t:.6f} s"
 
 
-def commands_by_link(traffic: Traffic, drivers: dict[str, str]) -> dict[tuple[str, str], Commands]:
+def commands_by_link(traffic: Traffic, drivers: dict[str, str], keys: list | None = None) -> dict[tuple[str, str], Commands]:
     """The commands of ``traffic`` per (instrument, link) (:func:`bench.replay.recording.link_of`),
-    in order; instruments not in ``drivers`` (instrument -> driver name) left out."""
+    in order; instruments not in ``drivers`` (instrument -> driver name) left out. ``keys``: the
+    events' links if already worked out (:func:`bench.replay.recording.link_keys`)."""
     from bench.replay.recording import link_keys
 
     rows: dict[tuple[str, str], list[int]] = {}
-    for i, (key, kind) in enumerate(zip(link_keys(traffic, drivers), traffic.kind)):
+    for i, (key, kind) in enumerate(zip(link_keys(traffic, drivers) if keys is None else keys, traffic.kind)):
         if key is not None and kind == "command":
             got = rows.get(key)
             if got is None:
@@ -114,15 +115,15 @@ class Commands:
 
 
 def compare(src: RunSummary, rep: RunSummary, src_traffic: Traffic, rep_traffic: Traffic, drivers: dict[str, str], *,
-            timed: bool, prefix_only: bool) -> list[Divergence]:
+            timed: bool, prefix_only: bool, src_keys: list | None = None) -> list[Divergence]:
     """Every divergence, ordered by run time. ``src_traffic``/``rep_traffic``: the commands of
-    source and replay (:func:`bench.record.reader.read_traffic`). ``timed``: compare event times
-    (dry-run sources). ``prefix_only``: the source stopped without an end (crashed): compare what
-    it holds."""
+    source and replay (:func:`bench.record.reader.read_traffic`); ``src_keys``: the links of the
+    source's events if known. ``timed``: compare event times (dry-run sources). ``prefix_only``:
+    the source stopped without an end (crashed): compare what it holds."""
     names = {s.index: s.name for s in src.steps} | {s.index: s.name for s in rep.steps}
     out: list[Divergence] = []
 
-    a, b = commands_by_link(src_traffic, drivers), commands_by_link(rep_traffic, drivers)
+    a, b = commands_by_link(src_traffic, drivers, src_keys), commands_by_link(rep_traffic, drivers)
     none = Commands([], [], [], [])
     for key in sorted(set(a) | set(b)):
         ca, cb = a.get(key, none), b.get(key, none)

@@ -108,17 +108,26 @@ class Recording:
     """The texts of the files the recorded config read (sensor models, calibration files): absolute
     recorded path -> text, each path checked; None for a file recorded before bench kept them
     (then only the project's ``configs/`` provides them, :func:`config_file`)."""
+    _link_keys: dict = field(default_factory=dict, repr=False)
 
     @property
     def sha256(self) -> str:
         """Hex SHA-256 of the file's bytes."""
         return self.digest()
 
+    def link_keys(self, drivers: dict[str, str]) -> list[tuple[str, str] | None]:
+        """:func:`link_keys` of :attr:`traffic`, worked out once per ``drivers`` (the exchanges and
+        the comparison both need them)."""
+        key = tuple(sorted(drivers.items()))
+        if key not in self._link_keys:
+            self._link_keys[key] = link_keys(self.traffic, drivers)
+        return self._link_keys[key]
+
     def links(self, drivers: dict[str, str]) -> dict[tuple[str, str], list[Exchange]]:
         """(instrument, link) -> exchanges in order. ``drivers``: instrument -> driver name."""
         out: dict[tuple[str, str], list[Exchange]] = {}
         tr = self.traffic
-        for key, kind, t, step, message, data in zip(link_keys(tr, drivers), tr.kind, tr.t_s, tr.step, tr.message, tr.data):
+        for key, kind, t, step, message, data in zip(self.link_keys(drivers), tr.kind, tr.t_s, tr.step, tr.message, tr.data):
             if key is None:
                 continue
             seq = out.get(key)

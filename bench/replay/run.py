@@ -245,7 +245,8 @@ def _replay(rec, ws: Workspace, procedure_path: Path | None, runs_dir: Path, che
     crashed = rec.status in (layout.STATUS_CRASHED, layout.STATUS_RUNNING)
     if crashed:
         notes.append(f"note: the source has no end (status {rec.status}); compared up to its last event at {rec.end_t_s:.1f} s")
-    divs = compare(src, rep, rec.traffic, rep_commands, drivers, timed=rec.clock == "virtual", prefix_only=crashed)
+    divs = compare(src, rep, rec.traffic, rep_commands, drivers, timed=rec.clock == "virtual", prefix_only=crashed,
+                   src_keys=rec.link_keys(drivers))
     divs += compare_streams(rec.path, recorder.path, src, rep, crashed, timed=rec.clock == "virtual")
     if check_board:  # a fresh copy of the stored procedure: the replay's runner has been through the other
         fresh = (lambda: _load(ws, "procedure", lambda: load_procedure(stored_file, overrides, kinds, limits))) if stored is not None else None
