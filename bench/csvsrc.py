@@ -8,14 +8,13 @@ requested column must be a finite number.
 from __future__ import annotations
 
 import csv
-import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from bench.errors import InputError, Location
+from bench.errors import InputError, Location, finite_number
 from bench.inputs import CSV_LIMIT_BYTES, read_input_bytes
 
 _META = re.compile(r"^\s*#\s*([A-Za-z_][A-Za-z0-9_]*)\s*:\s*(.*?)\s*$")
@@ -94,15 +93,9 @@ def numeric_columns(table: CsvTable, columns: list[str]) -> dict[str, np.ndarray
             raise InputError(f"expected {len(table.header)} values like the header, got {len(row)}", Location(table.path, ln))
         for name, j in index.items():
             cell = row[j].strip()
-            try:
-                if "_" in cell:  # float() reads "1_000" as 1000: not a number in a data file
-                    raise ValueError(cell)
-                v = float(cell)
-            except ValueError:
-                raise InputError(f"expected a number, got {cell!r}", Location(table.path, ln), name) from None
-            if not math.isfinite(v):
-                raise InputError(f"expected a finite number, got {cell!r}", Location(table.path, ln), name)
-            values[name][r] = v
+            if "_" in cell:  # float() reads "1_000" as 1000: not a number in a data file
+                raise InputError(f"expected a number, got {cell!r}", Location(table.path, ln), name)
+            values[name][r] = finite_number(cell, Location(table.path, ln), name)
     return values
 
 

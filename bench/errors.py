@@ -5,6 +5,7 @@ Exit codes of the ``bench`` command: 0 success, 1 run failed or aborted, 2 bad i
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,6 +66,18 @@ class InputError(BenchError):
             parts.append(self.field)
         parts.append(self.message)
         return ": ".join(parts)
+
+
+def finite_number(value: object, where: Location | None, field: str | None) -> float:
+    """``value`` (a text or a number from an input) as a finite float; :class:`InputError`
+    ("expected a number" / "expected a finite number", located at ``where``, ``field``) otherwise."""
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InputError(f"expected a number, got {value!r}", where, field) from None
+    if not math.isfinite(v):
+        raise InputError(f"expected a finite number, got {value!r}", where, field)
+    return v
 
 
 class DestinationError(InputError):

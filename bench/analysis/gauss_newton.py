@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from bench.analysis.result import CalibrationResult, ResultTable
-from bench.errors import InputError, Location
+from bench.errors import InputError, Location, finite_number
 from bench.model.accel import NasaSensorParams, nasa_sensor_input, sensitive_axes, sting_gravity
 
 AXES = ("x", "y", "z")
@@ -435,13 +435,7 @@ def _jnum(x: float) -> float | None:
 
 
 def _num(value: Any, name: str, where: Location) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"expected a number, got {value!r}", where, name) from None
-    if not math.isfinite(out):
-        raise InputError(f"expected a finite number, got {value!r}", where, name)
-    return out
+    return finite_number(value, where, name)
 
 
 def _require(ds: Any, cols: list[str], where: Location, what: str) -> None:

@@ -50,7 +50,7 @@ from scipy import stats
 from bench.analysis.dataset import AXES, GYRO, REF_RATE, Dataset
 from bench.analysis.result import CalibrationResult, ResultTable
 from bench.csvsrc import read_csv_table
-from bench.errors import InputError, Location
+from bench.errors import InputError, Location, finite_number
 
 REQUIREMENT_FRACTION = 0.05
 """NPSAT1 Sec. I-C-1-a: "The MEMS is required to be able to provide an accuracy of within ±5 % of the
@@ -299,14 +299,7 @@ def read_summary_csv(path: str | Path) -> list[Step]:
             raise InputError(f"expected x, y or z, got {row[idx['axis']].strip()!r}", where, "axis")
         nums = {}
         for name in ("rate_dps", "mean_output_dps"):
-            cell = row[idx[name]].strip()
-            try:
-                v = float(cell)
-            except ValueError:
-                raise InputError(f"expected a number, got {cell!r}", where, name) from None
-            if not math.isfinite(v):
-                raise InputError(f"expected a finite number, got {cell!r}", where, name)
-            nums[name] = v
+            nums[name] = finite_number(row[idx[name]].strip(), where, name)
         rates = tuple(nums["rate_dps"] if a == axis else 0.0 for a in AXES)
         step = Step(len(steps), rates, {axis: nums["mean_output_dps"]}, line=ln)
         if all(name in table.header for name in SCATTER_COLUMNS):

@@ -266,8 +266,7 @@ class RunRecorder:
         if self._broken:
             raise RecorderError(f"writing {self.path} failed earlier: {self._failure}")
         self._events.add(kind, source, message, t_s=t_s, step=step, data=data)
-        if t_s > self._run_time_s and t_s != math.inf:  # _note_run_time inline: a run logs tens of events a second
-            self._run_time_s = float(t_s)
+        self._note_run_time(t_s)
 
     def tick(self, run_time_s: float | None = None) -> None:
         """Note the current run time (s) and flush if ``flush_interval_s`` of wall time has passed

@@ -13,7 +13,6 @@ from __future__ import annotations
 import contextlib
 import hmac
 import json
-import math
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +25,7 @@ from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Respon
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from bench.errors import InputError, InputErrors
+from bench.errors import InputError, InputErrors, finite_number
 from bench.web.decimate import StreamCache, decimate, xy_pairs
 from bench.web.live import LiveRuns
 from bench.web.pages import LiveReader, run_page, runs_table
@@ -90,13 +89,7 @@ def _float(request: Request, name: str) -> float | None:
     text = request.query_params.get(name, "")
     if text in ("", "null", "undefined"):
         return None
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"expected a number, got {text!r}", None, name) from None
-    if not math.isfinite(v):
-        raise InputError(f"expected a finite number, got {text!r}", None, name)
-    return v
+    return finite_number(text, None, name)
 
 
 def _int(request: Request, name: str, default: int) -> int:
