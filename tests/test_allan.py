@@ -413,6 +413,49 @@ def test_by_the_book_data_not_reaching_one_second():
     assert any("do not reach τ = 1 s" in m for m in res.notes)
 
 
+def adis_like(rng: np.random.Generator, n: int, fs: float, arw_dps_rt_s: float, fc_hz: float) -> np.ndarray:
+    """White rate noise through the sensor's first-order low-pass at ``fc_hz`` (an ADIS16405-like
+    output: its Allan deviation is flatter than −½ at short τ, where the filter averages, and −½ from
+    a few filter time constants on)."""
+    from scipy.signal import lfilter
+
+    a = math.exp(-2 * math.pi * fc_hz / fs)
+    return lfilter([1 - a], [1, -a], white(rng, n, fs, arw_dps_rt_s))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_arw_read_at_one_second_where_short_taus_are_flatter(seed):
+    """IEEE 952: N is the −½ line read at τ = 1 s. An ADIS-like curve (slope +0.1 … −0.4 below 0.3 s,
+    −½ from there on) lies under the −½ line at short τ; the old read-out took the lowest −½ line
+    touching the curve and read it far from 1 s (0.005-460 s, 17-23 % low). Now: read at 1 s, within
+    the statistics and the filter's 1 % of the true N, and no note claiming another reason."""
+    rng = np.random.default_rng(seed)
+    fs, n, arw = 200.0, 240_000, 2.0 / 60  # 20 min at 200 Hz, N = 2 deg/√h, 10 Hz low-pass
+    res = calibrate(make_ds(adis_like(rng, n, fs, arw, 10.0), fs))
+    x = res.json["axes"]["x"]
+    assert_by_the_book(x)
+    a = x["terms"]["arw"]
+    slopes = np.array([np.nan if v is None else v for v in x["slope"]])
+    taus = np.array(x["taus_s"])
+    assert np.all(slopes[taus < 0.1] > -0.35)  # the case: flatter than −½ at short τ
+    assert a["read"] == "1 s" and a["tau_s"] == 1.0 and a["not_at_1s"] is None
+    assert abs(a["slope_at_read"] + 0.5) < 0.15
+    assert a["value"] == pytest.approx(arw * 60, rel=0.06)
+    assert a["where_slope"] is None
+    assert not any("ARW" in m and "read at τ" in m for m in res.notes)
+
+
+def test_arw_note_gives_the_reason_taken():
+    """When the −½ line cannot be read at 1 s, the note's reason is the one in the reading
+    (``not_at_1s``), not a fixed text."""
+    rng = np.random.default_rng(37)
+    fs, arw = 0.5, 0.01
+    res = calibrate(make_ds(white(rng, 20_000, fs, arw), fs))
+    a = res.json["axes"]["x"]["terms"]["arw"]
+    assert a["read"] == "slope region" and a["not_at_1s"].startswith("the data do not reach τ = 1 s (τ = 2-")
+    assert any(a["not_at_1s"] in m and "ARW" in m for m in res.notes)
+
+
 def test_by_the_book_quantised_register_is_said():
     rng = np.random.default_rng(38)
     lsb = 250.0 / 32768

@@ -420,6 +420,12 @@ MIN_SHARE = 0.5
 ARW_TAU_S = 1.0
 """The −½ line is read at τ = 1 s (NPSAT1 Table 13, IEEE Std 952: N = σ(1 s))."""
 
+WHITE_SLOPE_TOL = 0.05
+"""The −½ line is read at 1 s itself where the local slope there is −½ within this (or its own
+standard uncertainty): with AVAR = N²/τ + (a term of slope 0 or −1) the slope is −½ ∓ ½·(the other
+term's share), so 0.05 means white noise holds ≥ 90 % of the variance (σ within 5 % of the line).
+Flatter or steeper at 1 s but −½ within this elsewhere on the −½ stretch: the line is read there."""
+
 MIN_RUN_RATIO = 2.0 * (1 - 1e-9)
 """A term is resolved only where its slope holds (and is told apart from the neighbouring terms')
 over at least an octave of τ: IEEE 952 reads straight-line segments, and shorter excursions of the
@@ -513,9 +519,10 @@ class TermReading:
     (resolved runs; for B read at the minimum, where the slope is consistent with 0);
     ``estimate_only``: B read at a minimum that is no resolved floor (NPSAT1's "estimate only": an
     upper bound). ``how``: for B ``"flat region"``, ``"minimum"``, ``"minimum, no flat region"`` (a V)
-    or ``"minimum, floor not resolved"``; for ARW ``"1 s"`` (the lowest −½ line touching the curve at
-    τ ≥ 1 s, NPSAT1), ``"slope region with 1 s"`` (1 s lies on a −½ stretch: the line read there
-    where best determined) or ``"slope region"`` (read on a −½ stretch away from 1 s).
+    or ``"minimum, floor not resolved"``; for ARW ``"1 s"`` (IEEE 952: σ(1 s) itself where the curve
+    falls as −½ at 1 s, else the lowest −½ line touching the curve at τ ≥ 1 s, NPSAT1) or
+    ``"slope region"`` (read on a −½ stretch away from 1 s; ``not_at_1s`` says why, the reason the
+    read-out took).
     ``alternative`` (ARW read at 1 s where the slope is not −½): the reading on the −½ stretch
     (value, ci, tau_s, tau_range_s, slope, slope_u, slope_range_s). ``at_slope``: the local slope at
     the read point is consistent with the term's; ``evidenced``: the read point lies in a stretch
@@ -536,6 +543,7 @@ class TermReading:
     upper_bound: float | None = None
     alternative: dict[str, Any] | None = None
     at_slope: bool = True
+    not_at_1s: str | None = None
     evidenced: bool = False
     seen: bool = False
     how: str = ""
@@ -843,7 +851,68 @@ class _Reader:
         r.value, r.ci, r.tau_range_s, r.slope_range_s = got["value"], got["ci"], got["range"], srange
         return r
 
+    def at(self, term: str, i: int, others: np.ndarray) -> dict[str, Any] | None:
+        """The term's line through the curve at index ``i`` itself (IEEE 952 reads the −½ line at
+        τ = 1 s), with the other terms' variance ``others`` taken off; ``None`` with ``self.why`` when
+        the line would hold less than half of the variance there. The range is where that line lies
+        within the curve's band at z standard deviations, contiguous around ``i``."""
+        al = self.allan
+        g = term_factor(term, self.taus)
+        s2 = al.adev ** 2 - others
+        share = np.clip(s2, 0.0, None) / al.adev ** 2
+        if share[i] < MIN_SHARE or s2[i] <= 0:
+            self.why = (f"at τ = {_fmt(self.taus[i])} s the {SLOPE_TEXT[SLOPE[term]]} line would hold only "
+                        f"{100 * max(float(share[i]), 0.0):.0f} % of the variance once the other terms are taken off")
+            return None
+        c = math.sqrt(s2[i]) / g[i]
+        ci = tuple(math.sqrt(max(b ** 2 - others[i], 0.0)) / g[i] for b in (al.adev_lo[i], al.adev_hi[i]))
+        lo_z, hi_z = chi2_interval(al.adev, al.edf, math.erf(self.z / math.sqrt(2.0)))
+        zlo = np.sqrt(np.clip(lo_z ** 2 - others, 0.0, None)) / g
+        zhi = np.sqrt(np.clip(hi_z ** 2 - others, 0.0, None)) / g
+        inside = (zlo <= c * (1 + 1e-12)) & (c <= zhi * (1 + 1e-12)) & (share >= MIN_SHARE)
+        a = b = i
+        while a - 1 >= 0 and inside[a - 1]:
+            a -= 1
+        while b + 1 < self.size and inside[b + 1]:
+            b += 1
+        rel = al.adev[i] ** 2 * math.sqrt(2.0 / al.edf[i]) / (2.0 * s2[i])
+        return {"i": int(i), "value": float(c), "ci": (float(ci[0]), float(ci[1])),
+                "range": (float(self.taus[a]), float(self.taus[b])), "rel": float(rel)}
+
+    def white_at(self, one: int, runs: list[tuple[int, int]], others: np.ndarray) -> tuple[dict[str, Any] | None, str | None]:
+        """The −½ line where the curve falls as −½ at 1 s (index ``one``): read at 1 s itself when
+        1 s lies in a stretch where the slope is −½ within :data:`WHITE_SLOPE_TOL` (white noise
+        holds ≥ 90 % of the variance there); else, when such a stretch exists elsewhere on a −½ run,
+        read there (the line's value at 1 s is N) with the reason; else at 1 s. Returns the reading
+        (or ``None``, ``self.why`` saying why) and the reason it is not read at 1 s."""
+        in_run = np.zeros(self.size, dtype=bool)
+        for lo, hi in runs:
+            in_run[lo:hi + 1] = True
+        pure = self.consistent["arw"] & in_run & (np.abs(self.mu + 0.5) <= np.maximum(WHITE_SLOPE_TOL, self.u))
+        stretches = _true_runs(pure)
+        if pure[one] or not stretches:
+            return self.at("arw", one, others), None
+        lo, hi = min(stretches, key=lambda r: min(abs(math.log(self.taus[i] / self.taus[one])) for i in (r[0], r[1])))
+        got = self.tangent("arw", np.arange(lo, hi + 1), others, need_slope=False)
+        if got is None:
+            return self.at("arw", one, others), None
+        why = (f"the slope at τ = {_fmt(self.taus[one])} s is {self.slope_text(one)}: white noise holds less than "
+               f"90 % of the variance there (another term adds to it); the −½ line is read where the slope is "
+               f"−½ within {WHITE_SLOPE_TOL:g} ({_range_text(self.taus[lo], self.taus[hi])}) and N is its value at 1 s")
+        return got, why
+
     def arw(self, values: dict[str, TermReading]) -> TermReading:
+        """IEEE Std 952 (Annex C) and NPSAT1 Table 13: the −½ line read at τ = 1 s.
+
+        * the curve falls as −½ at 1 s (local slope consistent with −½): N = σ(1 s) itself, the other
+          terms' variance taken off (``how`` ``"1 s"``); below 1 s the curve may lie under the line
+          (an output filter or correlated noise flattens it there), which does not move the reading;
+        * the curve has another slope at 1 s: the lowest −½ line touching the curve at τ ≥ 1 s
+          (NPSAT1's reading, ``how`` ``"1 s"``, ``at_slope`` false, with the reading where the curve
+          itself falls as −½ in ``alternative``);
+        * 1 s not reached, or the line at 1 s not readable (it would hold less than half of the
+          variance, or lie above the curve's upper band at longer τ): the −½ line read in a −½
+          stretch (``how`` ``"slope region"``), and ``not_at_1s`` says why (the reason taken)."""
         r = TermReading("arw")
         others = self.others("arw", values)
         reasons: list[str] = []
@@ -855,25 +924,39 @@ class _Reader:
             idx = np.flatnonzero(self.taus >= self.arw_tau_s * (1 - 1e-9)) if reach else None
             r.upper_bound = self.upper_bound("arw", idx)
             return r
-        got, how = None, "slope region"
-        if reach:
+        got, how, not_at_1s = None, "slope region", None
+        if not reach:
+            not_at_1s = (f"the data do not reach τ = {_fmt(self.arw_tau_s)} s (τ = {_fmt(self.taus[0])}-"
+                         f"{_fmt(self.taus[-1])} s)")
+        else:
             idx = np.flatnonzero(self.taus >= self.arw_tau_s * (1 - 1e-9))
             one = int(idx[0])
-            inside = [(lo, hi) for lo, hi in runs if lo <= one <= hi]
-            if inside:  # 1 s lies on the −½ stretch: the line is the curve there; read it where best determined
-                idx = np.union1d(np.arange(inside[0][0], inside[0][1] + 1), idx)
-            got = self.tangent("arw", idx, others, need_slope=bool(inside))
-            if got is not None and self.contradiction("arw", got["value"], got["range"][0]) is not None:
-                got = None
-            how = "slope region with 1 s" if inside else "1 s"
+            if self.consistent["arw"][one] or any(lo <= one <= hi for lo, hi in runs):
+                # 1 s on the −½ stretch: the line read at 1 s, or where the slope is −½ on that stretch
+                got, not_at_1s = self.white_at(one, runs, others)
+                if got is None and not_at_1s is None:
+                    not_at_1s = self.why
+                how = "1 s" if got is not None and got["i"] == one else "slope region"
+            else:  # another slope at 1 s: the lowest −½ line under the curve from 1 s on (NPSAT1)
+                got = self.tangent("arw", idx, others, need_slope=False)
+                if got is None:
+                    not_at_1s = self.why
+                how = "1 s"
+            if got is not None:
+                bad = self.contradiction("arw", got["value"], self.taus[got["i"]])
+                if bad is not None:
+                    not_at_1s = (f"the −½ line read at τ = {_fmt(self.taus[got['i']])} s would lie above the curve's "
+                                 f"upper {CHECK_Z:g}σ bound at τ = {_fmt(bad)} s")
+                    got = None
         if got is None:
             if alt is None:
-                r.reason = "; ".join(reasons) or "no −½ line fits under the curve"
+                r.reason = "; ".join(([not_at_1s] if not_at_1s else []) + reasons) or "no −½ line fits under the curve"
                 r.upper_bound = self.upper_bound("arw")
                 return r
             got, how = alt[0], "slope region"
         self.fill(r, got["i"])
         r.how = how
+        r.not_at_1s = not_at_1s if how == "slope region" else None
         r.value, r.ci, r.tau_range_s = got["value"], got["ci"], got["range"]
         k = np.concatenate([np.arange(lo, hi + 1) for lo, hi in runs])
         r.slope_range_s = (float(self.taus[k.min()]), float(self.taus[k.max()]))

@@ -31,7 +31,6 @@ from typing import Any
 import numpy as np
 
 from bench.analysis.allan import (
-    ARW_TAU_S,
     FLICKER_FLOOR,
     NAMES,
     ONE_SIGMA,
@@ -471,6 +470,7 @@ def _term_json(r: TermReading) -> dict[str, Any]:
         "upper_bound": r.customary(r.upper_bound),
     }
     if r.term == "arw":
+        out["not_at_1s"] = r.not_at_1s if r.value is not None else None
         alt = r.alternative
         out["where_slope"] = None if alt is None else {
             "value": alt["value"] * f, "ci": _pair(alt["ci"], f), "tau_s": alt["tau_s"],
@@ -517,9 +517,7 @@ def _axis_notes(a: str, res: AxisNoise, fs: float) -> list[str]:
     if arw.value is not None:
         v = arw.customary(arw.value)
         if arw.how == "slope region":
-            reach = res.readout.allan.taus_s
-            why = ("the data do not reach τ = 1 s" if reach[0] > ARW_TAU_S or reach[-1] < ARW_TAU_S
-                   else "no −½ line read at τ ≥ 1 s holds half of the curve there")
+            why = arw.not_at_1s or "the −½ line could not be read at τ = 1 s"
             out.append(f"{a}: ARW {v:.4g} deg/√h read at τ = {arw.tau_s:.3g} s where the slope is −½ ({why})")
         if not arw.at_slope:
             shape = "rises" if arw.slope > SLOPE["arw"] else "falls faster than −½"
