@@ -32,11 +32,14 @@ def add_analysis_parsers(sub: argparse._SubParsersAction) -> None:
         description="Calibrate sensors from a run file, a measured-data CSV (time_s, gyro_x_dps, temp_c, ...: units in "
                     "the column names) or another program's HDF5/netCDF-4 file with --map. Methods: thermal (bias and "
                     "scale factor vs temperature), rate-transfer (scale factor and bias from rate steps), two-level, "
-                    "gauss-newton (accelerometer/gyro 12-parameter fit), noise (Allan deviation: ARW, bias "
+                    "gauss-newton (accelerometer/gyro 12-parameter fit), six-position (six faces and three rotations, "
+                    "Ferraris/imucal: accelerometer and gyro bias, scale, misalignment, gyro g-sensitivity), noise (Allan deviation: ARW, bias "
                     "instability, RRW), moving-average (noise vs the board's averaging). docs/calibration.md.",
         epilog=epilog("bench calibrate thermal runs/20261123T101500Z_thermal_ramp_ambient.h5 -o calibration.yaml",
                       "bench calibrate noise data.csv --json",
                       "bench calibrate gauss-newton DATA.nc --map accel=acceleration:m/s2 --map time=timestamp:s --sensor accel",
+                      "bench calibrate six-position session.csv --map configs/mappings/imucal.yaml --map sample_rate_hz=102.4 "
+                      "--sections session_list.json -o calibration.yaml",
                       ok="the calibration was computed (and written with -o)", bad=data_bad))
     c.add_argument("method", choices=list(METHODS), help="calibration method: " + ", ".join(METHODS))
     c.add_argument("data", type=Path, help="run file (.h5), measured-data CSV, or HDF5/netCDF-4 file with --map")
@@ -46,6 +49,11 @@ def add_analysis_parsers(sub: argparse._SubParsersAction) -> None:
                    help="write the calibration YAML here (default: none; an existing file only with --force)")
     c.add_argument("--sensor", choices=["accel", "gyro"], default=None, help="gauss-newton: which sensor (default accel)")
     c.add_argument("--degree", type=int, default=None, help="thermal: polynomial degree (default 3, NPSAT1 Table 4)")
+    c.add_argument("--sections", type=Path, default=None, metavar="FILE",
+                   help="six-position: the section list (imucal's JSON or CSV, or YAML with start/end rows or "
+                        "start_s/end_s); default: found in the data and reported")
+    c.add_argument("--local-g", default=None, metavar="ACCEL",
+                   help="six-position: gravity at the bench, e.g. '9.81 m/s^2' (default 9.80665 m/s², 1 g)")
     add_force(c)
 
     i = sub.add_parser(
@@ -126,7 +134,8 @@ def cmd_calibrate(args: argparse.Namespace, console: Console) -> int:
     from bench.replay.recording import file_sha256
 
     check_output(args.output, "-o", force=args.force, inputs=[args.data])
-    opts = calibration_options(args.method, degree=args.degree, sensor=args.sensor)
+    opts = calibration_options(args.method, degree=args.degree, sensor=args.sensor, sections=args.sections,
+                               local_g=args.local_g)
     with Progress(f"calibrate {args.method}") as say:
         result = calibrate_file(args.method, args.data, args.map, opts, progress=say, on_note=_note_on_stderr)
     if args.json:

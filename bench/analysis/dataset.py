@@ -5,7 +5,9 @@ loaded by :func:`load_dataset` from either
 
 * a measured-data CSV (``docs/analysis.md``): optional leading ``# key: value`` lines (metadata such
   as ``sample_rate_hz``, ``latitude_deg``), one header row, numeric rows; known columns are
-  :data:`COLUMNS`; ``time_s`` and at least one gyro column are required, extra columns are ignored;
+  :data:`COLUMNS` (``tilt_deg`` among them); ``time_s`` and at least one gyro column are required,
+  extra columns are ignored; a CSV whose columns have other names is read through a mapping
+  (``--map``, ``bench/analysis/foreign.py``);
   or
 * a bench run file (``.h5``): the ACS board stream gives time, gyro, accelerometer and temperature;
   the rate-table, chamber and thermocouple monitors are interpolated onto the board's sample times;
@@ -34,6 +36,7 @@ COLUMNS: dict[str, str] = {
     "ref_rate_y_dps": "reference (true) rate about sensor y (deg/s)",
     "ref_rate_z_dps": "reference (true) rate about sensor z (deg/s)",
     "table_angle_deg": "rate-table (or bench) angle (deg)",
+    "tilt_deg": "rate-table tilt: angle of the platter normal from the vertical (deg)",
     "temp_c": "sensor temperature channel (°C)",
     "chamber_temp_c": "chamber temperature (°C)",
     "pressure_torr": "chamber pressure (Torr)",
@@ -210,6 +213,12 @@ def dataset_from_csv(path: str | Path) -> Dataset:
         i = int(bad[0]) + 1
         raise InputError(f"time must increase from row to row: {float(t[i])!r} s follows {float(t[i - 1])!r} s",
                          Location(table.path, table.lines[i]), "time_s")
+    return Dataset(values, csv_meta(table), str(table.path), np.array(table.lines, dtype=np.int64))
+
+
+def csv_meta(table) -> dict[str, float | str]:
+    """A CSV's ``# key: value`` lines: numbers as floats, the rest as text; the numbers the analyses
+    use (:data:`META_RANGES`) checked, an :class:`InputError` at the line of a bad one."""
     meta: dict[str, float | str] = {}
     for key, text in table.meta.items():
         try:
@@ -219,12 +228,13 @@ def dataset_from_csv(path: str | Path) -> Dataset:
             meta[key] = text
         if key in META_RANGES:
             _check_meta(key, meta[key], Location(table.path, table.meta_lines.get(key)))
-    return Dataset(values, meta, str(table.path), np.array(table.lines, dtype=np.int64))
+    return meta
 
 
 META_RANGES: dict[str, tuple[float, float, bool, str]] = {
     "sample_rate_hz": (0.0, 1e7, False, "Hz"),
     "latitude_deg": (-90.0, 90.0, True, "deg"),
+    "tilt_deg": (-360.0, 360.0, True, "deg"),
 }
 """Metadata the analyses use as numbers: (low, high, low included, units). Anything else is kept as text."""
 

@@ -99,6 +99,7 @@ def _targets() -> dict[str, tuple[tuple[str, ...], str]]:
         "chamber_temp": (("chamber_temp_c",), "temp"),
         "pressure": (("pressure_torr",), "pressure"),
         "table_angle": (("table_angle_deg",), "angle"),
+        "tilt": (("tilt_deg",), "angle"),
         "time": (("time_s",), "time"),
         "power_on": (("power_on_s",), "time"),
     })
@@ -109,7 +110,7 @@ def _targets() -> dict[str, tuple[tuple[str, ...], str]]:
 TARGETS: dict[str, tuple[tuple[str, ...], str]] = _targets()
 """Mapping target -> (dataset columns it fills, kind of quantity)."""
 
-META_KEYS = {"sample_rate_hz": "Hz", "latitude_deg": "deg"}
+META_KEYS = {"sample_rate_hz": "Hz", "latitude_deg": "deg", "tilt_deg": "deg"}
 """Mapping keys that are numbers for the dataset's metadata, with their units."""
 
 
@@ -263,6 +264,9 @@ def _meta_number(key: str, value: Any, where: Location | None, fieldname: str) -
     if key == "sample_rate_hz" and not 0 < v <= MAX_RATE_HZ:
         raise InputError(f"sample_rate_hz must be above 0 Hz (and at most {MAX_RATE_HZ:g}), got {v:g}",
                          where, fieldname if where is not None else f"{fieldname}: {key}")
+    if key == "tilt_deg" and not -360 <= v <= 360:
+        raise InputError(f"tilt_deg must lie in -360..360 deg, got {v:g}", where,
+                         fieldname if where is not None else f"{fieldname}: {key}")
     if key == "latitude_deg" and not -90 <= v <= 90:
         raise InputError(f"latitude_deg must lie in -90..90 deg, got {v:g}", where,
                          fieldname if where is not None else f"{fieldname}: {key}")
@@ -794,6 +798,9 @@ def dataset_from_foreign(path: str | Path, mapping: ForeignMapping | Sequence[st
     if not sensors:
         raise InputError("the mapping maps no gyro or accelerometer variable (targets gyro, gyro_x, accel, ...)",
                          None, "--map")
+    if _is_text(p):
+        reads, rate, meta = _csv_reads(p, mapping)
+        return _assemble(p, mapping, reads, rate, meta)
     f = _open(p)
     try:
         if ATTR_FORMAT_VERSION in f.attrs:
@@ -813,10 +820,71 @@ def dataset_from_foreign(path: str | Path, mapping: ForeignMapping | Sequence[st
         rate = None if "time" in reads else _sample_rate(p, mapping, objs)
     finally:
         f.close()
+    return _assemble(p, mapping, reads, rate, {"source_format": SOURCE_FORMAT})
 
+
+def _is_text(p: Path) -> bool:
+    """A file to read as a CSV under a mapping: it exists, is not HDF5 or netCDF-3, and its first
+    4 KiB hold no NUL byte (any other file goes to :func:`_open`, which says what it is)."""
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    return bool(head) and not head.startswith(HDF5_SIGNATURE) and not head.startswith(b"CDF") and b"\0" not in head
+
+
+def _csv_reads(p: Path, mapping: ForeignMapping) -> tuple[dict[str, _Read], tuple[float, str] | None, dict[str, Any]]:
+    """The mapped columns of a CSV file (``gyro=gyr_x,gyr_y,gyr_z:deg/s``: a target's columns named
+    in order, comma-separated; units from the mapping, a CSV having no units attributes), the sample
+    rate (the mapping's, else the CSV's ``# sample_rate_hz:`` line) and the CSV's metadata."""
+    from bench.analysis.dataset import csv_meta
+    from bench.csvsrc import numeric_columns, read_csv_table
+
+    table = read_csv_table(p)
+    header = Location(p, table.header_line)
+    reads: dict[str, _Read] = {}
+    for target, entry in mapping.entries.items():
+        columns, kind = TARGETS[target]
+        if entry.columns is not None:
+            example = "A,B,C" if len(columns) == 3 else "NAME"
+            raise _entry_error(p, entry, f"a CSV column holds one value per row: name the column(s) instead of "
+                                         f"[{entry.columns_text}], e.g. {target}={example}:UNITS")
+        names = [c.strip() for c in entry.variable.split(",")]
+        if len(names) != len(columns):
+            raise _entry_error(p, entry, f"needs {len(columns)} column{'s' if len(columns) > 1 else ''} "
+                                         f"({', '.join(columns)}); {entry.variable!r} names {len(names)} (name them "
+                                         "comma-separated, in x, y, z order)")
+        for name in names:
+            if name not in table.header:
+                raise InputError(f"no column {name!r} in the CSV header (columns: {', '.join(table.header)})", header,
+                                 f"mapping entry {target!r}")
+        if entry.units is None:
+            raise _entry_error(p, entry, f"units are needed: a CSV column has no units attribute; give them as "
+                                         f"{entry.text}:UNITS ({KINDS[kind].examples})")
+        values = numeric_columns(table, names)
+        reads[target] = _Read(entry, np.column_stack([values[c] for c in names]), entry.units, "the mapping")
+    meta = csv_meta(table)
+    rate = None
+    if "time" not in reads:
+        if "sample_rate_hz" in mapping.meta:
+            origin = mapping.meta_origin["sample_rate_hz"]
+            rate = (mapping.meta["sample_rate_hz"], "sample_rate_hz of --map" if origin == "--map"
+                    else f"sample_rate_hz at {origin}")
+        elif isinstance(meta.get("sample_rate_hz"), float):
+            rate = (float(meta["sample_rate_hz"]), f"# sample_rate_hz: at {p}:{table.meta_lines['sample_rate_hz']}")
+    meta["source_format"] = "CSV (mapped)"
+    return reads, rate, meta
+
+
+def _assemble(p: Path, mapping: ForeignMapping, reads: dict[str, _Read], rate: tuple[float, str] | None,
+              meta: dict[str, Any]) -> Dataset:
+    """The dataset of the mapped values ``reads``: units converted, time from the ``time`` entry or
+    ``rate``, rows with a missing value dropped (said in the metadata), time increasing."""
+    first = next(iter(reads.values()), None)
     n = first.values.shape[0] if first is not None else 0
     cols: dict[str, np.ndarray] = {}
-    meta: dict[str, float | str] = {"source_format": SOURCE_FORMAT, "mapping": mapping.text}
+    meta = {**meta, "mapping": mapping.text}
     for target, r in reads.items():
         values, origin = _convert(p, r)
         for k, name in enumerate(TARGETS[target][0]):
@@ -866,7 +934,7 @@ def dataset_from_foreign(path: str | Path, mapping: ForeignMapping | Sequence[st
 def load_notes(ds: Dataset) -> list[str]:
     """What the operator should know about how a mapped file was read (time source, dropped rows).
     (A run file imported from one keeps these in its metadata too.)"""
-    if ds.meta.get("source_format") != SOURCE_FORMAT:
+    if ds.meta.get("source_format") not in (SOURCE_FORMAT, "CSV (mapped)"):
         return []
     out = [f"{ds.source}: {len(ds)} samples; time_s from {ds.meta.get('time_source')}"]
     if "dropped_note" in ds.meta:

@@ -362,10 +362,10 @@ def calibrate(ds: Any, sensor: str = "accel", **opts: Any) -> CalibrationResult:
         out_cols = [f"accel_{a}_g" for a in AXES]
         _require(ds, out_cols + ["table_angle_deg"], where, "an accelerometer calibration")
         angle = np.asarray(ds["table_angle_deg"], dtype=float)
-        tilt, tilt_note = _tilt_deg(ds, opts, where)
+        tilt, tilt_note = tilt_per_row(ds, opts, where)
         if tilt_note:
             notes.append(tilt_note)
-        mount = _mount(opts.get("mount", ds.meta.get("mount", "z")), where)
+        mount = mount_of(opts.get("mount", ds.meta.get("mount", "z")), where)
         rate = _gradient(angle, t)
         still_dps = _num(opts.get("still_dps", STILL_DPS), "still_dps", where)
         tilt_rate = _gradient(tilt, t)
@@ -444,8 +444,10 @@ def _require(ds: Any, cols: list[str], where: Location, what: str) -> None:
         raise InputError(f"{what} needs column(s) {', '.join(missing)} (present: {', '.join(ds.columns)})", where)
 
 
-def _tilt_deg(ds: Any, opts: dict[str, Any], where: Location) -> tuple[np.ndarray, str]:
-    """Per-row tilt (deg) and a note saying where it came from."""
+def tilt_per_row(ds: Any, opts: dict[str, Any], where: Location) -> tuple[np.ndarray, str]:
+    """Per-row tilt (deg) and a note saying where it came from: the ``tilt_deg`` option (one number
+    or one per row), a ``tilt_deg`` column (CSV, ``--map tilt=...``), ``tilt_deg`` in the metadata
+    (``# tilt_deg: 90``, ``--map tilt_deg=90``) or the run file's rate-table monitor."""
     n = len(ds)
     if "tilt_deg" in opts:
         raw = opts["tilt_deg"]
@@ -491,7 +493,8 @@ def _tilt_from_run(ds: Any) -> np.ndarray | None:
     return np.interp(np.asarray(ds["time_s"], dtype=float), tm, tilt)
 
 
-def _mount(value: Any, where: Location) -> np.ndarray:
+def mount_of(value: Any, where: Location) -> np.ndarray:
+    """The mount matrix of ``value`` (the sensor axis along the platter normal, e.g. ``z``, ``-x``)."""
     from bench.model.geometry import mount_matrix
 
     try:

@@ -31,6 +31,7 @@ METHODS: dict[str, tuple[str, str]] = {
     "rate-transfer": ("bench.analysis.rate_transfer", "calibrate"),
     "two-level": ("bench.analysis.two_level", "calibrate"),
     "gauss-newton": ("bench.analysis.gauss_newton", "calibrate"),
+    "six-position": ("bench.analysis.six_position", "calibrate"),
     "noise": ("bench.analysis.noise_cal", "calibrate"),
     "moving-average": ("bench.analysis.noise_cal", "calibrate_moving_average"),
 }
@@ -44,10 +45,17 @@ def _quiet(_text: str) -> None:
     """The sink that says nothing."""
 
 
-def calibration_options(method: str, *, degree: int | None = None, sensor: str | None = None) -> dict[str, Any]:
-    """The keyword options of ``method`` from ``--degree`` (thermal) and ``--sensor`` (gauss-newton);
-    an option given to a method it does not apply to is bad input (:class:`InputError` naming it)."""
+def calibration_options(method: str, *, degree: int | None = None, sensor: str | None = None,
+                        sections: Path | None = None, local_g: str | None = None) -> dict[str, Any]:
+    """The keyword options of ``method`` from ``--degree`` (thermal), ``--sensor`` (gauss-newton),
+    ``--sections`` and ``--local-g`` (six-position); an option given to a method it does not apply
+    to is bad input (:class:`InputError` naming it)."""
     opts: dict[str, Any] = {}
+    for value, flag, key in ((sections, "--sections", "sections"), (local_g, "--local-g", "local_g")):
+        if value is not None:
+            if method != "six-position":
+                raise InputError(f"{flag} applies to the six-position method only", None, flag)
+            opts[key] = str(value)
     if degree is not None:
         if method != "thermal":
             raise InputError("--degree applies to the thermal method only", None, "--degree")

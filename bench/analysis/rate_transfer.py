@@ -250,6 +250,10 @@ def _n_eff(v: np.ndarray) -> float:
     return max(1.0, n * (1 - rho) / (1 + rho))
 
 
+effective_samples = _n_eff
+"""The public name of :func:`_n_eff` (the six-position calibration uses it too)."""
+
+
 # ---- summary CSV ---------------------------------------------------------------------------------
 SUMMARY_COLUMNS = ("axis", "rate_dps", "mean_output_dps")
 SCATTER_COLUMNS = ("std_output_dps", "n")
