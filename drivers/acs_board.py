@@ -151,7 +151,7 @@ class AcsBoard(Driver):
         die temperature (first temperature channel, °C). Raises ``ValueError`` without one."""
         if self.compensation is None:
             raise ValueError("acs_board: no calibration configured (instrument 'calibration:' in the lab config)")
-        return self.compensation.apply(batch.gyro_dps, batch.temp_degc[:, 0])
+        return self.compensation.apply(batch.gyro_dps, batch.temp_degc[:, 0], batch.accel_g)
 
     def _feed(self, data: bytes) -> DecodedBatch:
         batch = self.decoder.feed(data)

@@ -47,7 +47,7 @@ def test_files_merge_later_terms_override(tmp_path: Path):
 
 
 @pytest.mark.parametrize("text, says", [
-    ("method: noise\n", "expected a thermal or rate-transfer calibration"),
+    ("method: noise\n", "expected a thermal, rate-transfer or six-position calibration"),
     ("method: thermal\naxes: {x: {coefficients: [1]}}\n", "incomplete gyro compensation"),
     ("method: rate-transfer\nb_cons_dps: {x: 0, y: 0, z: 0}\nM: [[1, 2]]\n", "incomplete gyro compensation"),
 ])

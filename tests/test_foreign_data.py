@@ -253,6 +253,8 @@ def test_cli_errors_name_the_file_and_the_mapping_entry(tmp_path, phone, capsys)
         "t": (np.array([0.0, 1, 2, 2, 3, 4, 5, 6, 7, 8]), {"units": "s"}),
     })
     s = str(short)
+    binary = tmp_path / "data.bin"
+    binary.write_bytes(b"\x00\x01binary\x00" * 10)
     cases = [
         ([p, "--map", "gyro=angular_velocity[3:6]:furlongs/s"],
          f"{p}: mapping entry 'gyro': units 'furlongs/s'"),
@@ -276,8 +278,10 @@ def test_cli_errors_name_the_file_and_the_mapping_entry(tmp_path, phone, capsys)
         ([s, "--map", "gyro=angular_velocity", "--map", "time=angular_velocity[0]:degC"],
          f"{s}: mapping entry 'time': units 'degC'"),
         ([str(tmp_path / "absent.nc"), "--map", "gyro=x"], f"{tmp_path / 'absent.nc'}: data file not found"),
-        ([str(ROOT / "tests" / "data" / "npsat1_tables_9_11.csv"), "--map", "gyro=x"],
-         f"{ROOT / 'tests' / 'data' / 'npsat1_tables_9_11.csv'}: not an HDF5 or netCDF-4 file"),
+        ([str(ROOT / "tests" / "data" / "npsat1_tables_9_11.csv"), "--map", "gyro=x"],  # a CSV: columns named
+         f"{ROOT / 'tests' / 'data' / 'npsat1_tables_9_11.csv'}: mapping entry 'gyro': needs 3 columns "
+         "(gyro_x_dps, gyro_y_dps, gyro_z_dps); 'x' names 1"),
+        ([str(binary), "--map", "gyro=x"], f"{binary}: not an HDF5 or netCDF-4 file"),
         ([p, "--map", "gyro=angular_velocity[3:6", "--map", "sample_rate_hz=10"], "--map: 'gyro=angular_velocity[3:6'"),
     ]
     for i, (args, start) in enumerate(cases):

@@ -390,12 +390,17 @@ def calibrate(ds: Any, sensor: str = "accel", **opts: Any) -> CalibrationResult:
     out = np.column_stack([np.asarray(ds[c], dtype=float) for c in out_cols])
     groups = [g for g in groups if np.all(np.isfinite(out[g]))]
     if len(groups) < 5:
+        hint = (" A session of six faces and hand or table rotations (Ferraris, imucal) is read by "
+                "`bench calibrate six-position`." if sensor == "gyro" else "")
         raise InputError(f"too few positions: found {len(groups)} {kind} with at least {min_samples} samples; "
                          "the Gauss-Newton calibration fits 4 parameters per axis and needs at least 5 "
-                         "(the report used 1,001 orientations)", where)
+                         f"(the report used 1,001 orientations).{hint}", where)
     v = np.array([inputs(g).mean(axis=0) for g in groups])
     y = np.array([out[g].mean(axis=0) for g in groups])
-    fit = gauss_newton_calibrate(v, y, initial=initial, max_iter=max_iter, tol=tol)
+    try:
+        fit = gauss_newton_calibrate(v, y, initial=initial, max_iter=max_iter, tol=tol)
+    except InputError as exc:  # about the positions of this file: say which file
+        raise InputError(exc.message, exc.location or where, exc.field) from None
     notes += fit.notes
     p, e = fit.params, fit.std_errors
     axes_json: dict[str, Any] = {}

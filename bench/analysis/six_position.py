@@ -103,6 +103,8 @@ class Section:
     angle_deg: float | None = None
     origin: str = ""
     notes: list[str] = field(default_factory=list)
+    where: Location | None = None
+    """Where a listed section was written (its entry in the section list), for messages."""
 
 
 # ---- section lists --------------------------------------------------------------------------------
@@ -145,7 +147,7 @@ def load_sections(path: str | Path, ds: Dataset) -> dict[str, Section]:
             angle = _number(fields["angle_deg"], locs["angle_deg"], f"{name}.angle_deg")
             if angle == 0:
                 raise InputError("a rotation's angle cannot be 0", locs["angle_deg"], f"{name}.angle_deg")
-        out[name] = Section(name, start, stop, angle, str(node.location))
+        out[name] = Section(name, start, stop, angle, str(node.location), where=node.location)
     return _complete(out, Location(p))
 
 
@@ -172,7 +174,7 @@ def _sections_from_csv(p: Path, ds: Dataset) -> dict[str, Section]:
             raise InputError(f"unknown section {name!r} (sections: {', '.join(SECTIONS)})", loc)
         fields = {"start": row[head.index("start")].strip(), "end": row[head.index("end")].strip()}
         start, stop = _rows(ds, name, fields, {"start": loc, "end": loc}, loc)
-        out[name] = Section(name, start, stop, None, str(loc))
+        out[name] = Section(name, start, stop, None, str(loc), where=loc)
     return _complete(out, Location(p))
 
 
@@ -418,7 +420,7 @@ def calibrate(ds: Dataset, **opts: Any) -> CalibrationResult:
         notes += ["  " + line for line in found_lines]
     for s in sections.values():
         if s.stop - s.start < 2:
-            raise InputError(f"section {s.name} holds {s.stop - s.start} sample(s)", where, "sections")
+            raise InputError(f"holds {s.stop - s.start} sample(s)", s.where or where, s.name)
     dt = _dt(t)
     acc_m, acc_u, gyro_m, gyro_u = (np.zeros((6, 3)) for _ in range(4))
     for i, name in enumerate(STATIC):
@@ -428,9 +430,10 @@ def calibrate(ds: Dataset, **opts: Any) -> CalibrationResult:
     for i, name in enumerate(STATIC):
         got = _face(acc_m[i])
         if got != name:
-            raise InputError(f"section {name} ({sections[name].origin or 'found'}): the accelerometer's mean there "
+            sec = sections[name]
+            raise InputError(f"the accelerometer's mean over rows {sec.start}-{sec.stop} of {ds.source or 'the data'} "
                              f"({', '.join(f'{v:.3g}' for v in acc_m[i])} g) points out of "
-                             f"{'no face' if got is None else 'face ' + got}, not {name}", where, "sections")
+                             f"{'no face' if got is None else 'face ' + got}, not {name}", sec.where or where, name)
     w_raw, a_int, dur, outside = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3), np.zeros((3, 3))
     var_w = np.zeros((3, 3))
     static_dev = np.concatenate([gyro[sections[n].start:sections[n].stop] - gyro_m[i] for i, n in enumerate(STATIC)])
@@ -466,14 +469,18 @@ def calibrate(ds: Dataset, **opts: Any) -> CalibrationResult:
     f_nom = np.array([_face_vector(n) for n in STATIC]) * g
     r_acc = acc_m - (f_nom @ res["T_a"].T + res["b_a"])
     r_gyro = gyro_m - (f_nom @ res["K_ga"].T + res["b_g"])
-    off = np.array([[AXES[j] != STATIC[i][0] for j in range(3)] for i in range(6)])
     pair_noise = np.array([[(acc_u[2 * c, j] ** 2 + acc_u[2 * c + 1, j] ** 2) / 4 for c in range(3)] for j in range(3)])
     r_off = np.array([[r_acc[2 * c, j] for c in range(3) if c != j] for j in range(3)])
     noise_off = np.array([[pair_noise[j, c] + pair_noise[j, j] for c in range(3) if c != j] for j in range(3)])
     pos_var = max(0.0, 2.0 * float(np.mean(r_off ** 2 - noise_off)))  # (g·δ)², 6 degrees of freedom
     d_g = (gyro_m[0::2] + gyro_m[1::2]) / 2.0  # (3 faces, 3 axes)
     gyro_scatter = max(0.0, float(np.sum((d_g - d_g.mean(axis=0)) ** 2)) / 3.0 - float(np.mean(gyro_u ** 2)))
-    var_acc = acc_u ** 2 + np.where(off, pos_var, 0.0)
+    # a face tilted by δ moves reading (face i, axis j) by g·Σ_{k≠i} T_a[j, k]·δ_k: ≈ g·δ off the face's
+    # axis, and the misalignment (T_a[i, k], k ≠ i) times g·δ on it
+    t_a = res["T_a"]
+    tilt_gain = np.array([[sum(t_a[j, k] ** 2 for k in range(3) if k != AXES.index(STATIC[i][0])) for j in range(3)]
+                          for i in range(6)])
+    var_acc = acc_u ** 2 + pos_var * tilt_gain
     var_gyro = gyro_u ** 2 + gyro_scatter
     var = np.concatenate([var_acc.ravel(), var_gyro.ravel(), var_w.ravel(), np.full(3, angle_u ** 2)])
     se = _propagate(lambda x: _outputs(ferraris(inp.with_vector(x))), inp.vector(), var)
@@ -542,8 +549,9 @@ def _angle(name: str, s: Section, opts: dict[str, Any], ds: Dataset, dt: np.ndar
             return a, "the integrated reference rate"
     turns = round(turned / 360.0)
     if turns == 0:
-        raise InputError(f"section {name} turns {turned:.0f}° about {AXES[k]}: not a rotation (give angle_deg in the "
-                         "section list, or the rotation_deg option)", Location(ds.source or "data"), "sections")
+        raise InputError(f"turns {turned:.0f}° about {AXES[k]} over rows {s.start}-{s.stop}: not a rotation (give "
+                         "angle_deg in the section list, or the rotation_deg option)", s.where or Location(ds.source or "data"),
+                         name)
     return 360.0 * turns, f"the nearest multiple of 360° to the measured {turned:.1f}° (imucal assumes −360°)"
 
 

@@ -9,6 +9,9 @@ The terms come from files (:func:`load_compensation`), any combination of
 
 * ``bench calibrate thermal -o`` calibration files (``method: thermal``): b_in-run per axis;
 * ``bench calibrate rate-transfer -o`` files (``method: rate-transfer``): b_cons and M;
+* ``bench calibrate six-position -o`` files (``method: six-position``): b_cons (the gyro bias), M
+  (T_g − I: scale and misalignment) and the g-sensitivity K_ga (deg/s per g, applied when the
+  specific force is given);
 * sensor-model files (``model: npsat1_gyro``, e.g. ``configs/sensors/npsat1_qrs11_ground.yaml``,
   Table 15 values): b_in-run (°C form), b_cons and M.
 
@@ -40,12 +43,17 @@ class Compensation:
     b_cons_dps: np.ndarray = field(default_factory=lambda: np.zeros(3))
     m: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     sources: list[str] = field(default_factory=list)
+    g_sensitivity: np.ndarray | None = None
+    """(3, 3) deg/s per g, rows output axis, columns specific-force axis (six-position K_ga), or None."""
 
-    def apply(self, gyro_dps: np.ndarray, temp_c: np.ndarray) -> np.ndarray:
+    def apply(self, gyro_dps: np.ndarray, temp_c: np.ndarray, accel_g: np.ndarray | None = None) -> np.ndarray:
         """Compensated rates (n, 3) deg/s from raw outputs ``gyro_dps`` (n, 3) and the gyro
-        temperature ``temp_c`` (n,) or (n, 3), °C."""
+        temperature ``temp_c`` (n,) or (n, 3), °C; with ``accel_g`` (n, 3) the specific force (g)
+        the g-sensitivity term K_ga·f is taken off too."""
         g = np.asarray(gyro_dps, dtype=float)
         y = g - self.b_cons_dps
+        if self.g_sensitivity is not None and accel_g is not None:
+            y = y - np.asarray(accel_g, dtype=float) @ self.g_sensitivity.T
         if self.in_run_poly_degc is not None:
             t = np.asarray(temp_c, dtype=float)
             t3 = t if t.ndim == 2 else np.repeat(np.atleast_1d(t)[:, None], 3, axis=1)
@@ -56,7 +64,8 @@ class Compensation:
     def describe(self) -> str:
         """One line for the run file's instrument record."""
         terms = (["b_in-run"] if self.in_run_poly_degc is not None else []) + \
-                (["b_cons"] if np.any(self.b_cons_dps) else []) + (["M"] if np.any(self.m) else [])
+                (["b_cons"] if np.any(self.b_cons_dps) else []) + (["M"] if np.any(self.m) else []) + \
+                (["K_ga"] if self.g_sensitivity is not None and np.any(self.g_sensitivity) else [])
         return f"NPSAT1 Eq. 2 ({', '.join(terms) or 'nothing'}) from {', '.join(self.sources)}"
 
 
@@ -80,10 +89,14 @@ def load_compensation(paths: list[str | Path], texts: dict[str, str] | None = No
             elif data.get("method") == "rate-transfer":
                 comp.b_cons_dps = np.array([float(data["b_cons_dps"][a]) for a in AXES])
                 comp.m = _matrix(data["M"])
+            elif data.get("method") == "six-position":
+                comp.b_cons_dps = np.array([float(data["b_cons_dps"][a]) for a in AXES])
+                comp.m = _matrix(data["M"])
+                comp.g_sensitivity = _matrix(data["gyro"]["g_sensitivity_dps_per_g"])
             elif data.get("model") == "npsat1_gyro":
                 _from_sensor_model(p, src.text, comp)
             else:
-                raise InputError("expected a thermal or rate-transfer calibration (bench calibrate ... -o) or an npsat1_gyro "
+                raise InputError("expected a thermal, rate-transfer or six-position calibration (bench calibrate ... -o) or an npsat1_gyro "
                                  "sensor model", where, "method")
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError(f"incomplete gyro compensation terms ({type(exc).__name__}: {exc}); expected the file "
