@@ -535,3 +535,68 @@ def test_other_bad_input_is_an_input_error():
 def test_unknown_options_are_reported_not_fatal():
     res = calibrate(gyro_dataset(), sensor="gyro", json=True, colour=None)
     assert any("ignored option(s): json" in n for n in res.notes)
+
+
+# ---- every tilt the docs promise reaches the method (issue 29) ---------------------------------------
+def _write_csv(path, ds: Dataset, cols: list[str], meta: dict | None = None, names: dict | None = None) -> None:
+    names = names or {}
+    lines = [f"# {k}: {v}" for k, v in (meta or {}).items()]
+    lines.append(",".join(names.get(c, c) for c in cols))
+    data = np.column_stack([ds[c] for c in cols])
+    lines += [",".join(repr(float(v)) for v in row) for row in data]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_tilt_column_reaches_the_accel_calibration_from_the_command_line(tmp_path, capsys):
+    """A measured-data CSV with a tilt_deg column calibrates from the CLI (the loader used to drop
+    the column: "needs the table tilt"); the same file with other column names through --map (tilt
+    target) and through a mapping YAML gives the same result."""
+    from tests.test_foreign_data import bench_in_process
+
+    ds = accel_dataset()
+    cols = ["time_s", "table_angle_deg", "tilt_deg", "gyro_x_dps", "accel_x_g", "accel_y_g", "accel_z_g"]
+    csv = tmp_path / "positions.csv"
+    _write_csv(csv, ds, cols)
+    res = bench_in_process(capsys, "calibrate", "gauss-newton", str(csv), "--sensor", "accel", "--json")
+    assert res.returncode == 0, res.stderr
+    direct = json.loads(res.stdout)
+    _json_errors(direct, BENCH_ACCEL)
+    other = tmp_path / "other.csv"
+    names = {"time_s": "t", "table_angle_deg": "platter", "tilt_deg": "incl", "gyro_x_dps": "wx",
+             "accel_x_g": "ax", "accel_y_g": "ay", "accel_z_g": "az"}
+    _write_csv(other, ds, cols, names=names)
+    maps = ["time=t:s", "table_angle=platter:deg", "tilt=incl:deg", "gyro_x=wx:deg/s", "accel=ax,ay,az:g"]
+    mapping = tmp_path / "map.yaml"
+    mapping.write_text("schema: bench-mapping/1\n" + "".join(f"{m.split('=')[0]}: \"{m.split('=')[1]}\"\n" for m in maps))
+    for extra in ([a for m in maps for a in ("--map", m)], ["--map", str(mapping)]):
+        res = bench_in_process(capsys, "calibrate", "gauss-newton", str(other), "--sensor", "accel", "--json", *extra)
+        assert res.returncode == 0, res.stderr
+        assert json.loads(res.stdout)["axes"] == direct["axes"]
+
+
+def test_tilt_metadata_and_the_rank_message_name_the_file(tmp_path, capsys):
+    """`# tilt_deg: 90` reaches the method; one tilt cannot determine the fit, and the message says
+    which file (it had no file prefix)."""
+    from tests.test_foreign_data import bench_err, bench_in_process
+
+    ds = accel_dataset(tilts=(90.0,), tilt_as="meta")
+    csv = tmp_path / "one_tilt.csv"
+    _write_csv(csv, ds, ["time_s", "table_angle_deg", "gyro_x_dps", "accel_x_g", "accel_y_g", "accel_z_g"],
+               meta={"tilt_deg": 90})
+    msg = bench_err(bench_in_process(capsys, "calibrate", "gauss-newton", str(csv), "--sensor", "accel"))
+    assert msg.startswith(f"{csv}: the positions do not determine bias, sensitivity, azimuth and coning "
+                          "(the input vectors and a constant span only 3 of the 4 needed directions)"), msg
+    bad = tmp_path / "bad_tilt.csv"
+    _write_csv(bad, ds, ["time_s", "table_angle_deg", "gyro_x_dps", "accel_x_g", "accel_y_g", "accel_z_g"],
+               meta={"tilt_deg": "steep"})
+    msg = bench_err(bench_in_process(capsys, "calibrate", "gauss-newton", str(bad), "--sensor", "accel"))
+    assert msg == f"{bad}:1: tilt_deg: expected a number in deg, got 'steep'"
+
+
+def test_gyro_fit_on_a_ferraris_session_points_to_six_position():
+    """The six still faces of a Ferraris session form one zero-rate plateau: the gyro fit is refused
+    and the message names the method that reads such a session."""
+    ds = gyro_dataset()
+    still = np.all(np.column_stack([ds[f"ref_rate_{a}_dps"] for a in "xyz"]) == 0, axis=1)
+    with pytest.raises(InputError, match="read by `bench calibrate six-position`"):
+        calibrate(ds.select(still | (np.arange(len(ds)) < 40)), sensor="gyro")
