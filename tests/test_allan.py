@@ -511,12 +511,38 @@ def test_s5_log_read_by_the_book(real_log):
         assert x["arw_deg_per_sqrt_h"] == pytest.approx(arw_ref, rel=0.10), a
         assert x["bias_instability_deg_per_h"] == pytest.approx(b_ref, rel=0.25), a
         assert x["terms"]["arw"]["tau_s"] == 1.0 and x["arw_slope_at_read"] > 0.3  # the curve rises at 1 s
+        assert x["terms"]["arw"]["read"] == "1 s" and x["terms"]["arw"]["not_at_1s"] is None
         assert 200 < x["terms"]["bias_instability"]["tau_s"] < 3000
         assert x["rrw_deg_per_h_per_sqrt_h"] is None and "above the curve" in x["terms"]["rrw"]["reason"]
         assert x["quantization_deg"] is None
         assert x["lsb_dps"] is None
     assert sum("rises there" in m for m in res.notes) == 3
     assert not any("quantised" in m for m in res.notes)
+
+
+def test_cats_log_arw_reason_is_the_one_taken(real_log):
+    """The CATS tag log (1 Hz, quantised output): the −½ line through τ = 1 s is refused on every axis
+    (x: quantization holds the variance there; y, z: the line would cross the curve's 3σ band at longer
+    τ); the ARW is read on the −½ stretch and the note gives exactly the reason the read-out took (the
+    old note said "no −½ line read at τ ≥ 1 s holds half of the curve there" whatever the reason, and
+    the JSON called it "slope region with 1 s")."""
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(real_log("cats_temperature_calib.nc"), "r") as f:
+        gyro = np.degrees(np.asarray(f["angular_velocity"][:], dtype=float) / 1000.0)  # mrad/s -> deg/s
+    n = gyro.shape[0]
+    ds = Dataset({"time_s": np.arange(n) / 1.0, **{f"gyro_{a}_dps": gyro[:, k] for k, a in enumerate("xyz")}},
+                 {"sample_rate_hz": 1.0}, "cats_temperature_calib.nc")
+    res = calibrate(ds)
+    reasons = {}
+    for a in "xyz":
+        t = res.json["axes"][a]["terms"]["arw"]
+        assert t["read"] == "slope region" and t["tau_s"] > 1.0
+        reasons[a] = t["not_at_1s"]
+        note = next(m for m in res.notes if m.startswith(f"{a}: ARW "))
+        assert note.endswith(f"where the slope is −½ ({t['not_at_1s']})"), note
+    assert "would hold only" in reasons["x"] and "quantization" in " ".join(res.notes)
+    assert all("would lie above the curve's upper 3σ bound" in reasons[a] for a in "yz")
+    assert not any("holds half of the curve" in m for m in res.notes)
 
 
 # ---- static selection and bad input -----------------------------------------------------------
