@@ -127,7 +127,6 @@ def imucal():
         import imucal  # noqa: F401
         import pandas  # noqa: F401
     except ImportError as exc:
-        print(f"SKIP reason: imucal is not installed ({exc}); python3 dev.py installs it from the package index")
         pytest.skip(f"imucal is not installed ({exc}); python3 dev.py installs it with the test extras")
     return imucal
 

@@ -251,7 +251,6 @@ def find_sections(ds: Dataset, *, still_dps: float = STILL_DPS, min_static_s: fl
     t = np.asarray(ds["time_s"], dtype=float)
     g = np.column_stack([np.asarray(ds[GYRO[a]], dtype=float) for a in AXES])
     acc = np.column_stack([np.asarray(ds[ACCEL[a]], dtype=float) for a in AXES])
-    n = t.size
     fs = ds.sample_rate_hz
     w = max(1, int(round(SMOOTH_S * fs)))
     dev = g - np.median(g, axis=0)
