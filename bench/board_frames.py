@@ -12,7 +12,8 @@ from pathlib import Path
 
 from bench.errors import InputError, InputErrors, Location
 from bench.yamlsrc import Node, Source, load_yaml
-from drivers.board_frames import FrameDescription, FrameDescriptionError, description_from_mapping, path_text
+from drivers.board_frames import FrameDescription, FrameDescriptionError, path_text
+from drivers.frame_schema import description_from_mapping
 
 
 def load_frame_description(path: str | Path) -> FrameDescription:

@@ -153,7 +153,7 @@ class LabConfig:
         """Instrument name -> the signals of its data stream, for the boards (from their frame
         descriptions; ours when a board names none)."""
         from bench.procedure.signals import StreamSignals
-        from drivers.board_frames import builtin_description
+        from drivers.frame_schema import builtin_description
 
         out = {}
         for n, i in self.instruments.items():
@@ -370,7 +370,7 @@ def _frames(driver: str | None, node: Node | None, base: Path, errors: list[Inpu
 def _check_board(frames: Any, f: Fields, sim: "SimConfig | None", compensation: Any, errors: list[InputError]) -> None:
     """What the rest of the board's settings need from its frames: a gyro and a temperature for a
     calibration, a number for the simulated serial where the board sends its serial as one."""
-    from drivers.board_frames import builtin_description
+    from drivers.frame_schema import builtin_description
 
     d = frames or builtin_description()
     if compensation is not None and (d.field("gyro") is None or d.field("temp") is None):

@@ -4,7 +4,7 @@ The board's wire format is data (:class:`drivers.board_frames.FrameDescription`)
 (``drivers/frames/acs_board.yaml``, docs/acs-board-protocol.md), or the lab's own
 (docs/frame-descriptions.md). The driver sends the description's commands, waits for their
 acknowledgement (or NAK) with a timeout, and decodes the data stream in batches with
-:class:`drivers.board_frames.FrameDecoder`. Data frames that arrive while a command is waiting
+:class:`drivers.frame_decoder.FrameDecoder`. Data frames that arrive while a command is waiting
 for its reply are kept and returned by the next :meth:`poll`, so no sample is lost to a command.
 Only idempotent reads (identify, get-config, built-in test) are retried. A command the
 description does not have raises :class:`ProtocolError` naming it.
@@ -23,7 +23,9 @@ import serial
 from drivers import board_frames
 from drivers.acs_protocol import MOVING_AVG_MAX
 from drivers.base import Driver, Transient, check_timeout
-from drivers.board_frames import DecodedBatch, FrameDescription, builtin_description, merge_batches
+from drivers.board_frames import FrameDescription
+from drivers.frame_decoder import DecodedBatch, FrameDecoder, merge_batches
+from drivers.frame_schema import builtin_description
 from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
 from drivers.transport import link_bytes_per_s, open_serial
 
@@ -63,7 +65,7 @@ class AcsBoard(Driver):
         self.read_attempts = 1 + retries
         self.name = "acs_board"
         self.on_traffic = on_traffic
-        self.decoder = board_frames.FrameDecoder(self.description)
+        self.decoder = FrameDecoder(self.description)
         self._pending: list[DecodedBatch] = []
         self.unsolicited_replies = 0
         up = self.description.power_up

@@ -13,7 +13,9 @@ from __future__ import annotations
 from enum import IntEnum, IntFlag
 
 from drivers import board_frames
-from drivers.board_frames import DecodedBatch, builtin_description  # noqa: F401 - DecodedBatch: part of this module's API
+from drivers import frame_decoder
+from drivers.frame_decoder import DecodedBatch  # noqa: F401 - part of this module's API
+from drivers.frame_schema import builtin_description
 
 DESCRIPTION = builtin_description("acs_board")
 """Our board's frames as data (``drivers/frames/acs_board.yaml``): encoder, decoder, dtype and the
@@ -83,8 +85,8 @@ def physical_to_raw(gyro_dps, accel_g, mag_ut, temp_degc):
     return raw["gyro"], raw["accel"], raw["mag"], raw["temp"], saturated
 
 
-class FrameDecoder(board_frames.FrameDecoder):
-    """Streaming batch decoder of our board's frames (:class:`drivers.board_frames.FrameDecoder` on
+class FrameDecoder(frame_decoder.FrameDecoder):
+    """Streaming batch decoder of our board's frames (:class:`drivers.frame_decoder.FrameDecoder` on
     :data:`DESCRIPTION`)."""
 
     def __init__(self, accept_unknown_types: bool = False) -> None:

@@ -29,7 +29,9 @@ from bench.errors import InputErrors
 from bench.procedure.signals import SIGNALS, VECTOR_COLUMNS
 from bench.sim import registry
 from drivers.acs_board import AcsBoard
-from drivers.board_frames import FrameDecoder, builtin_description, parse_reply
+from drivers.board_frames import parse_reply
+from drivers.frame_decoder import FrameDecoder
+from drivers.frame_schema import builtin_description
 from drivers.errors import ProtocolError
 from tests.conftest import ROOT, SIM_CONFIG, run_cli
 

@@ -33,7 +33,8 @@ import numpy as np
 
 from bench.replay.recording import Exchange
 from bench.sim.watlow_f4_rtu import crc16_modbus
-from drivers.board_frames import FrameDescription, builtin_description
+from drivers.board_frames import FrameDescription
+from drivers.frame_schema import builtin_description
 from drivers.can_transport import SyncBus
 
 Exhausted = Callable[[str], None]

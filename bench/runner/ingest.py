@@ -14,7 +14,8 @@ import numpy as np
 
 from bench.record import Column, RunRecorder
 from bench.runner.instruments import Streaming
-from drivers.board_frames import FrameDescription, builtin_description
+from drivers.board_frames import FrameDescription
+from drivers.frame_schema import builtin_description
 
 if TYPE_CHECKING:  # pragma: no cover
     from bench.clock import Clock

@@ -45,7 +45,7 @@ class Polled(Protocol):
 
 
 class FrameBatch(Protocol):
-    """Decoded frames of one poll of a streaming instrument (``drivers.board_frames.DecodedBatch``):
+    """Decoded frames of one poll of a streaming instrument (``drivers.frame_decoder.DecodedBatch``):
     counter, board time (s) and status per row, and the board's signal columns by name, in the
     units of its frame description."""
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import struct
 import threading
 from typing import Any
 from dataclasses import dataclass
@@ -42,7 +41,9 @@ from bench.model.inputs import SensorInputs
 from bench.sim.world import World
 from drivers import board_frames
 from drivers.acs_protocol import MOVING_AVG_MAX
-from drivers.board_frames import FrameDescription, builtin_description
+from drivers.board_frames import FrameDescription
+from drivers.frame_decoder import FrameDecoder
+from drivers.frame_schema import builtin_description
 
 PRESSURE_STEP_S = 10.0
 """Largest spacing (s) of the chamber-pressure samples interpolated for the gyro model."""
@@ -124,7 +125,7 @@ class AcsBoardSim:
         self.baudrate = baudrate
         self.bit_fail_mask = bit_fail_mask
         self._lock = threading.RLock()
-        self._decoder = board_frames.FrameDecoder(d, accept_unknown_types=True)
+        self._decoder = FrameDecoder(d, accept_unknown_types=True)
         self._out = bytearray()
         up = d.power_up
         self.sensor_power = bool(up["sensors_on"])
@@ -353,4 +354,4 @@ class AcsBoardSim:
     def discard_input(self) -> None:
         """Forget partial command bytes (host reset its output buffer / reopened the port)."""
         with self._lock:
-            self._decoder = board_frames.FrameDecoder(self.description, accept_unknown_types=True)
+            self._decoder = FrameDecoder(self.description, accept_unknown_types=True)

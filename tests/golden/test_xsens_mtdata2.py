@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bench.board_frames import load_frame_description
-from drivers.board_frames import FrameDecoder
+from drivers.frame_decoder import FrameDecoder
 
 X3 = bytes.fromhex(
     "10 20 02 8D 90 10 60 04 00 54 DB F1 20 10 10 3F 7F 89 11 BC 11 1D FA 3B A0 CE F0 BD 73 25 73 40 20 0C BD DC F9 D0 "
