@@ -89,7 +89,7 @@ class AcsBoard(Driver):
 
     # ---- commands ---------------------------------------------------------------------------
     def identify(self) -> dict[str, str]:
-        """Vendor, model, serial and firmware strings (``""`` where the board's reply has none)."""
+        """Vendor, model, serial and firmware strings: those the board's reply carries."""
         return board_frames.parse_reply(self.description, "identify", self._transact("identify", idempotent=True))
 
     def get_config(self) -> dict:

@@ -550,8 +550,8 @@ IDENTITY_KEYS = ("vendor", "model", "serial", "firmware")
 
 def parse_reply(d: FrameDescription, op: str, payload: bytes) -> dict[str, Any]:
     """The values of the reply to command ``op`` (:data:`OPS`); :class:`ProtocolError` for a payload
-    that does not fit the description. ``identify`` gives text for all of :data:`IDENTITY_KEYS`
-    (``""`` where the board sends none); ``get_config``'s flags are booleans."""
+    that does not fit the description. ``identify`` gives text for those of :data:`IDENTITY_KEYS`
+    the board's reply carries; ``get_config``'s flags are booleans."""
     reply = d.commands[op].reply
     if reply.text:
         parts = payload.decode("ascii", "replace").split(reply.separator)
@@ -566,7 +566,7 @@ def parse_reply(d: FrameDescription, op: str, payload: bytes) -> dict[str, Any]:
                                 f"{len(payload)} (frame description {d.name!r})")
         values = got
     if op == "identify":
-        return {k: str(values.get(k, "")) for k in IDENTITY_KEYS}
+        return {k: str(values[k]) for k in IDENTITY_KEYS if k in values}
     if op == "get_config":
         for k in ("streaming", "sensor_power"):
             if k in values:
