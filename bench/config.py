@@ -21,7 +21,6 @@ from bench.sim.world import WorldParams
 from bench.units import to_units
 from bench.yamlsrc import Fields, Node, load_yaml
 from bench.sim.table_motion import Eccentricity
-from drivers.board_frames import TYPES
 from drivers.stepper_speed import BenchSpeedCalibration
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -370,6 +369,7 @@ def _frames(driver: str | None, node: Node | None, base: Path, errors: list[Inpu
 def _check_board(frames: Any, f: Fields, sim: "SimConfig | None", compensation: Any, errors: list[InputError]) -> None:
     """What the rest of the board's settings need from its frames: a gyro and a temperature for a
     calibration, a number for the simulated serial where the board sends its serial as one."""
+    from drivers.board_frames import TYPES
     from drivers.frame_schema import builtin_description
 
     d = frames or builtin_description()

@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 
-from drivers.crc import crc16_xmodem, crc16_xmodem_rows
 from drivers.errors import ProtocolError
 
 SCHEMA = "bench-board-frames/1"
@@ -123,7 +122,12 @@ def path_text(path: tuple) -> str:
 
 # ---- checks -------------------------------------------------------------------------------------
 def _crc16_rows(init: int):
-    return lambda rows: crc16_xmodem_rows(rows, init)
+    def rows(r: np.ndarray) -> np.ndarray:
+        from drivers.crc import crc16_xmodem_rows  # its 128-KiB table is built on first use, not at a config's load
+
+        return crc16_xmodem_rows(r, init)
+
+    return rows
 
 
 def _sum8_rows(rows: np.ndarray) -> np.ndarray:
@@ -131,7 +135,12 @@ def _sum8_rows(rows: np.ndarray) -> np.ndarray:
 
 
 def _crc16_one(init: int):
-    return lambda data: crc16_xmodem(data, init)
+    def one(data: bytes) -> int:
+        from drivers.crc import crc16_xmodem
+
+        return crc16_xmodem(data, init)
+
+    return one
 
 
 def _sum8_one(data: bytes) -> int:
