@@ -11,7 +11,7 @@ import re
 from dataclasses import dataclass, field
 from datetime import date
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.errors import InputError, InputErrors, Location
 from bench.inputs import CONFIG_ROOTS, confined_path
@@ -22,6 +22,9 @@ from bench.units import to_units
 from bench.yamlsrc import Fields, Node, load_yaml
 from bench.sim.table_motion import Eccentricity
 from drivers.stepper_speed import BenchSpeedCalibration
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.procedure.signals import StreamSignals
 
 CONFIG_SCHEMA = "bench-config/1"
 SENSOR_MODEL_SCHEMA = "bench-sensor-model/1"
@@ -114,6 +117,9 @@ class InstrumentConfig:
     safe_state_timeout_s: float = DEFAULT_SAFE_STATE_TIMEOUT_S
     """Deadline of this instrument's safe state on an abort (s; config ``safe_state_timeout``, default
     :data:`SAFE_STATE_TIMEOUT_S` of its driver)."""
+    frames: Any = None
+    """acs_board: the board's frame description (config ``frames:``,
+    :class:`drivers.board_frames.FrameDescription`); None: our board's (docs/acs-board-protocol.md)."""
 
 
 @dataclass
@@ -141,6 +147,20 @@ class LabConfig:
     def kinds(self) -> dict[str, str]:
         """Instrument name -> driver."""
         return {n: i.driver for n, i in self.instruments.items()}
+
+    def signals(self) -> dict[str, "StreamSignals"]:
+        """Instrument name -> the signals of its data stream, for the boards (from their frame
+        descriptions; ours when a board names none)."""
+        from bench.procedure.signals import StreamSignals
+        from drivers.frame_schema import builtin_description
+
+        out = {}
+        for n, i in self.instruments.items():
+            if i.driver == "acs_board":
+                d = i.frames or builtin_description()
+                columns, vectors = d.signal_table()
+                out[n] = StreamSignals(columns, vectors, d.ops, d.name)
+        return out
 
     def limits(self) -> dict[str, dict[str, tuple]]:
         """Instrument name -> quantity -> (low, high) of this lab."""
@@ -294,6 +314,9 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError], sou
             errors.append(InputError(f"expected a safe-state deadline between {lo:g} s and {hi:g} s "
                                      f"(the {driver} default: {safe_default:g} s)", n.location, "safe_state_timeout"))
     compensation = _compensation(driver, f.node_at("calibration"), base, errors, sources)
+    frames = _frames(driver, f.node_at("frames"), base, errors, sources)
+    if frames is not None or driver == "acs_board":
+        _check_board(frames, f, sim, compensation, errors)
     serial = _identity_text(f, "serial", errors)
     firmware = _identity_text(f, "firmware", errors)
     due: date | None = None
@@ -309,7 +332,61 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError], sou
     return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
                             channels, tc_type, poll, limits, reconnect, compensation, serial=serial, firmware=firmware,
                             calibration_due=due, calibration_due_location=due_node.location if due_node is not None else None,
-                            safe_state_timeout_s=safe_timeout)
+                            safe_state_timeout_s=safe_timeout, frames=frames)
+
+
+def _frames(driver: str | None, node: Node | None, base: Path, errors: list[InputError], sources: dict[str, str]) -> Any:
+    """``frames: FILE`` (acs_board): the board's frame description (docs/frame-descriptions.md),
+    a path relative to the config's directory or in ``configs/``; its text into ``sources``. None
+    when absent (our board's frames) or bad (the errors recorded, located in that file)."""
+    if node is None:
+        return None
+    if driver != "acs_board":
+        errors.append(InputError("only a sensor board (driver acs_board) takes a frame description", node.location, "frames"))
+        return None
+    if not isinstance(node.value, str) or not node.value:
+        errors.append(InputError("expected the frame description's file, e.g. frames/xsens_mti.yaml", node.location, "frames"))
+        return None
+    path = _named_file(node.value, base, "frame description", node.location, "frames", errors)
+    if path is None:
+        return None
+    from bench.board_frames import frame_description_from_source
+
+    try:
+        src = load_yaml(path, "frame description")
+        sources[str(path)] = src.text  # kept in the run file: a replay reads it from there
+        description = frame_description_from_source(src)
+    except InputErrors as exc:
+        errors.extend(exc.errors)
+        return None
+    except InputError as exc:
+        errors.append(InputError(f"frame description {path}: {exc.message}", exc.location if exc.location and exc.location.line else node.location, "frames"))
+        return None
+    _keep_as_named(sources, node.value, base, path)
+    return description
+
+
+def _check_board(frames: Any, f: Fields, sim: "SimConfig | None", compensation: Any, errors: list[InputError]) -> None:
+    """What the rest of the board's settings need from its frames: a gyro and a temperature for a
+    calibration, a number for the simulated serial where the board sends its serial as one."""
+    from drivers.board_frames import TYPES
+    from drivers.frame_schema import builtin_description
+
+    d = frames or builtin_description()
+    if compensation is not None and (d.field("gyro") is None or d.field("temp") is None):
+        errors.append(InputError(f"a calibration compensates the gyro with its temperature: frame description {d.name!r} "
+                                 "has no gyro or no temp field", f.map["calibration"].location, "calibration"))
+    identify = d.commands["identify"].reply
+    item = next((i for i in identify.payload if i.name == "serial"), None)
+    if sim is not None and item is not None:
+        digits = sim.serial
+        ok = all(c in "0123456789abcdefABCDEF" for c in digits) if item.format == "hex" else digits.isdigit()
+        width = 2 * TYPES[item.type][1]
+        if not digits or not ok or (item.format == "hex" and len(digits) > width) or (ok and item.format == "dec" and int(digits) >= 1 << (4 * width)):
+            where = f.map["sim"].value.get("serial") if isinstance(f.map["sim"].value, dict) else None
+            errors.append(InputError(f"frame description {d.name!r} sends the serial as a {item.type} number: expected "
+                                     f"{'up to ' + str(width) + ' hex digits, e.g. 037003F8' if item.format == 'hex' else 'decimal digits'}"
+                                     f", got {sim.serial!r}", (where or f.map["sim"]).location, "serial"))
 
 
 def _compensation(driver: str | None, node: Node | None, base: Path, errors: list[InputError], sources: dict[str, str]) -> Any:

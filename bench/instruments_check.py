@@ -324,7 +324,8 @@ def _user() -> str:
 # ---- readings ------------------------------------------------------------------------------------
 def _acs_board(drv) -> str:
     c = drv.get_config()
-    return f"ODR {c['odr_hz']} Hz, moving average {c['moving_avg_n']}, sensors {'on' if c['sensor_power'] else 'off'}"
+    told = "" if c.get("read_back", True) else " (not read back: the board's frame description has no GET_CONFIG)"
+    return f"ODR {c['odr_hz']} Hz, moving average {c['moving_avg_n']}, sensors {'on' if c['sensor_power'] else 'off'}{told}"
 
 
 def _stepper_bench(drv) -> str:

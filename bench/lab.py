@@ -69,6 +69,8 @@ class Lab:
     """Instrument name -> how to open its driver again (same URL and settings)."""
     kinds: dict[str, str] = field(default_factory=dict)
     """Instrument name -> driver kind (``tvac``, ``rate_table``, ...), from the config."""
+    signals: dict[str, Any] = field(default_factory=dict)
+    """Board name -> the signals of its frame description (:class:`bench.procedure.signals.StreamSignals`)."""
     config_limits: dict[str, dict[str, tuple]] = field(default_factory=dict)
     """This lab's hardware limits per instrument (config ``limits:``; see bench.procedure.limits)."""
     safe_state_timeouts: dict[str, float] = field(default_factory=dict)
@@ -106,8 +108,8 @@ def driver_kwargs(inst: InstrumentConfig) -> dict[str, Any]:
         return {"gauge_url": inst.gauge_port, "gauge_baudrate": inst.gauge_baudrate, "safe_set_point_c": inst.safe_set_point_c}
     if inst.driver == "thermocouple_reader":
         return {"monitor_channels": inst.channels, "tc_type": inst.tc_type}
-    if inst.driver == "acs_board" and inst.compensation is not None:
-        return {"compensation": inst.compensation}
+    if inst.driver == "acs_board":
+        return {"compensation": inst.compensation, "description": inst.frames}
     return {}
 
 
@@ -146,6 +148,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
               {name: config.instruments[name].poll_interval_s for name in names}, world,
               {name: config.instruments[name].reconnect_timeout_s for name in names})
     lab.kinds = {name: config.instruments[name].driver for name in names}
+    lab.signals = config.signals()
     lab.config_limits = config.limits()
     lab.safe_state_timeouts = {name: config.instruments[name].safe_state_timeout_s for name in names}
     try:

@@ -23,7 +23,8 @@ def load_checked(procedure_path: Path, config_path: Path | None, params: dict[st
         config = load_config(config_path)
     kinds = config.kinds() if config is not None else None
     limits = config.limits() if config is not None else None
-    procedure = load_procedure(procedure_path, params, kinds, limits)
+    signals = config.signals() if config is not None else None
+    procedure = load_procedure(procedure_path, params, kinds, limits, signals)
     if config is not None:
         missing = [n for n in procedure.instruments if n not in config.instruments]
         if missing:

@@ -167,7 +167,7 @@ def test_output_data_rate_beyond_the_can_bandwidth_is_refused(rig):
         with pytest.raises(ValueError, match=r"1\.\.763 Hz"):
             board.set_odr(764)  # the driver knows the CAN link: 500 kbit/s / 655 bit per 38-byte frame = 763.4 Hz
         with pytest.raises(ProtocolError, match="SET_ODR: BAD_VALUE"):
-            board._transact(proto.FrameType.SET_ODR, struct.pack("<H", 764))  # and the board refuses it too
+            board._exchange(board.description.commands["set_odr"], struct.pack("<H", 764))  # and the board refuses it too
         board.set_odr(763)
         board.sensor_power(True)
         _, batches = _stream(board, clock, 5.0)

@@ -150,7 +150,7 @@ def test_nak_becomes_protocol_error(sim_board):
     port.write(proto.encode_frame(0x3C))
     assert proto.FrameDecoder().feed(port.read(64)).replies == [(proto.FrameType.NAK, bytes([0x3C, proto.NakCode.UNKNOWN_COMMAND]))]
     with pytest.raises(ProtocolError, match="BAD_LENGTH"):
-        board._transact(proto.FrameType.SET_MOVING_AVG, b"\x01\x02")
+        board._exchange(board.description.commands["set_moving_avg"], b"\x01\x02")
 
 
 def test_silent_port_times_out_after_retries():

@@ -46,9 +46,10 @@ def test_batch_crc_equals_crc_hqx(rows):
 
 def test_layout_is_consistent():
     assert proto.DATA_DTYPE.itemsize == proto.DATA_FRAME_LEN == 38
-    ends = [f.offset + np.dtype(f.dtype).itemsize * f.count for f in proto.DATA_LAYOUT]
-    assert ends[-1] == proto.CRC_OFFSET
-    assert all(e == f.offset for e, f in zip(ends[:-1], proto.DATA_LAYOUT[1:]))  # contiguous, no gaps
+    fields = proto.DESCRIPTION.fields
+    ends = [f.at + np.dtype(f.dtype).itemsize * f.count for f in fields]
+    assert fields[0].at == proto.HEADER_LEN and ends[-1] == proto.CRC_OFFSET
+    assert all(e == f.at for e, f in zip(ends[:-1], fields[1:]))  # contiguous, no gaps
 
 
 @settings(max_examples=200)

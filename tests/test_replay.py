@@ -16,6 +16,7 @@ from bench.record import read_run_summary
 from bench.replay import replay
 from bench.replay.cli import cmd_replay
 from drivers import acs_protocol
+from drivers.board_frames import FrameDescription
 
 SESSIONS = Path(__file__).resolve().parent / "sessions"
 RATE = SESSIONS / "rate_transfer_short.h5"
@@ -73,14 +74,14 @@ def test_changed_dwell_is_caught(tmp_path: Path):
 
 
 def test_changed_command_encoding_of_a_driver_is_caught(tmp_path: Path, monkeypatch):
-    original = acs_protocol.encode_frame
+    original = FrameDescription.encode_frame
 
-    def sensor_power_with_extra_byte(ftype: int, payload: bytes = b"") -> bytes:
+    def sensor_power_with_extra_byte(self, ftype: int, payload: bytes = b"") -> bytes:
         if ftype == acs_protocol.FrameType.SENSOR_POWER:
             payload = bytes([payload[0] * 2])  # a "new encoding": on = 2
-        return original(ftype, payload)
+        return original(self, ftype, payload)
 
-    monkeypatch.setattr(acs_protocol, "encode_frame", sensor_power_with_extra_byte)
+    monkeypatch.setattr(FrameDescription, "encode_frame", sensor_power_with_extra_byte)  # what the driver's frames are made with
     result = replay(RATE, runs_dir=tmp_path)
     assert not result.ok
     first = result.divergences[0]

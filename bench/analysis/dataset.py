@@ -316,7 +316,8 @@ def dataset_from_run(path: str | Path) -> Dataset:
     for k, a in enumerate(AXES):
         cols[GYRO[a]] = gyro[:, k]
         cols[ACCEL[a]] = accel[:, k]
-    cols["temp_c"] = _column(p, board, "acs_board", "temp", 1)[keep][:, 0]
+    temp = _column(p, board, "acs_board", "temp", None if np.ndim(board.get("temp")) == 1 else 1)[keep]
+    cols["temp_c"] = temp if temp.ndim == 1 else temp[:, 0]  # the gyro's: the first temperature a board sends
     cols["power_on_s"] = t - (t[0] if t.size else 0.0)
 
     if table_monitor in monitors:

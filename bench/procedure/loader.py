@@ -24,7 +24,7 @@ from bench.errors import InputError, InputErrors, Location
 from bench.inputs import PROCEDURE_ROOTS, confined_path
 from bench.procedure.limits import check_step_limits
 from bench.procedure.schema import BLOCK_TYPES, REQUIREMENTS, SCHEMA_ID, STEP_TYPES, FieldSpec
-from bench.procedure.signals import DEFAULT_KINDS, signal_units
+from bench.procedure.signals import DEFAULT_KINDS, STEP_COMMANDS, StreamSignals, signal_units
 from bench.units import TEMPERATURE_DIFFERENCE, to_units
 from bench.yamlsrc import MAX_FLOAT, Fields, Node, Source, load_yaml, parse_yaml
 
@@ -111,21 +111,25 @@ class Procedure:
 
 
 def load_procedure(path: str | Path, params: dict[str, str] | None = None, kinds: dict[str, str] | None = None,
-                   config_limits: dict[str, dict[str, tuple]] | None = None) -> Procedure:
+                   config_limits: dict[str, dict[str, tuple]] | None = None,
+                   signals: dict[str, StreamSignals] | None = None) -> Procedure:
     """Read, expand and validate a procedure file; raises :class:`InputErrors` listing every problem.
 
     ``params``: overrides ``NAME -> value text`` (``-p cold=-20degC``). ``kinds``: instrument name
     -> driver (from the lab config); by default the standard names are assumed (``tvac`` is a
     chamber, ...), which is what ``bench validate`` without ``--config`` checks against.
     ``config_limits``: instrument -> quantity -> (low, high) from the lab config; every step is
-    checked against the defaults, these and the procedure's own ``limits:``.
+    checked against the defaults, these and the procedure's own ``limits:``. ``signals``: board
+    name -> the signals and commands of its frame description (``LabConfig.signals()``); a board
+    not in it has ours.
     """
-    return _build(load_yaml(path, "procedure"), params or {}, kinds, config_limits or {})
+    return _build(load_yaml(path, "procedure"), params or {}, kinds, config_limits or {}, signals or {})
 
 
 def parse_procedure(text: str, path: str = "<procedure>", params: dict[str, str] | None = None,
-                    kinds: dict[str, str] | None = None, config_limits: dict[str, dict[str, tuple]] | None = None) -> Procedure:
-    return _build(parse_yaml(text, path, "procedure"), params or {}, kinds, config_limits or {})
+                    kinds: dict[str, str] | None = None, config_limits: dict[str, dict[str, tuple]] | None = None,
+                    signals: dict[str, StreamSignals] | None = None) -> Procedure:
+    return _build(parse_yaml(text, path, "procedure"), params or {}, kinds, config_limits or {}, signals or {})
 
 
 # ---- document -----------------------------------------------------------------------------------
@@ -175,7 +179,8 @@ class _Doc:
         top.check_unknown()
 
 
-def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None, config_limits: dict[str, dict[str, tuple]]) -> Procedure:
+def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None, config_limits: dict[str, dict[str, tuple]],
+           signals: dict[str, StreamSignals]) -> Procedure:
     errors: list[InputError] = []
     doc = _Doc(src, errors)
     kinds = dict(kinds) if kinds is not None else {n: DEFAULT_KINDS[n] for n in doc.instruments if n in DEFAULT_KINDS}
@@ -186,12 +191,12 @@ def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None,
     env: dict[str, Node] = {}
     for key, node in doc.parameters.items():
         env[key] = _as_node(_override_value(overrides[key]), Location(f"-p {key}")) if key in overrides else node
-    exp = _Expander(doc, kinds, errors)
+    exp = _Expander(doc, kinds, errors, signals)
     if doc.steps_node is not None and isinstance(doc.steps_node.value, list):
         exp.expand(doc.steps_node.value, env, doc, prefix="", context="", depth=0)
     limits = _limits(doc.limits_node, kinds, errors)
     inode = exp._subst(doc.interlocks_node, env) if doc.interlocks_node is not None else None
-    interlocks = _interlocks(inode, doc.instruments, kinds, errors)
+    interlocks = _interlocks(inode, doc.instruments, kinds, errors, signals)
     if not errors:
         for site, run in itertools.groupby(exp.steps, key=lambda s: exp.called_from.get(s.index, "")):
             for e in check_step_limits(list(run), kinds, config_limits, limits):
@@ -252,9 +257,10 @@ def _plain_value(value: Any, budget: list[int], depth: int = 0) -> bool:
 
 # ---- expansion ----------------------------------------------------------------------------------
 class _Expander:
-    def __init__(self, doc: _Doc, kinds: dict[str, str], errors: list[InputError]):
+    def __init__(self, doc: _Doc, kinds: dict[str, str], errors: list[InputError], signals: dict[str, StreamSignals]):
         self.root = doc
         self.kinds = kinds
+        self.signals = signals
         self.errors = errors
         self.steps: list[Step] = []
         self.sources: dict[str, str] = {}
@@ -316,6 +322,7 @@ class _Expander:
                 params[fname] = value
         name = f.get("name", str, default=stype)
         f.check_unknown()
+        self._check_board_commands(stype, params, f, key_loc)
         if len(self.errors) > before:
             return None
         if len(self.steps) >= MAX_STEPS:
@@ -327,6 +334,20 @@ class _Expander:
             self.called_from[step.index] = _called_from(self._sites)
         self.steps.append(step)
         return step
+
+    def _check_board_commands(self, stype: str, params: dict[str, Any], f: Fields, key_loc: Location) -> None:
+        """A board step whose handler sends a command the board's frame description does not have
+        (``bit`` on a board without RUN_BIT): refused here, before anything moves."""
+        stream = self.signals.get(params.get("instrument", ""))
+        if stream is None:
+            return
+        needs = [(k, c) for k in ([stype] if stype != "configure" else [p for p in params if p in STEP_COMMANDS])
+                 for c in STEP_COMMANDS.get(k, ()) if c not in stream.commands]
+        for key, command in needs:
+            where = f.key_location(key) if stype == "configure" else key_loc
+            self.errors.append(InputError(f"board {params['instrument']!r} (frame description {stream.description!r}) has no "
+                                          f"{command} command, which {stype if stype != 'configure' else f'configure {key}'} sends "
+                                          f"(its commands: {', '.join(sorted(stream.commands))})", where, key))
 
     # ---- substitution -------------------------------------------------------------------------
     def _subst(self, node: Node, env: dict[str, Node]) -> Node | None:
@@ -460,7 +481,7 @@ class _Expander:
             self.errors.append(InputError(f"instrument {inst!r} is not in the procedure's instruments list ({', '.join(sorted(doc.instruments))})", node.location, "signal"))
             return None
         try:
-            return signal_units(v, self.kinds.get(inst))
+            return signal_units(v, self.kinds.get(inst), self.signals.get(inst))
         except KeyError as exc:
             self.errors.append(InputError(str(exc.args[0]), node.location, "signal"))
             return None
@@ -794,7 +815,8 @@ def _limits(node: Node | None, kinds: dict[str, str], errors: list[InputError]) 
     return out
 
 
-def _interlocks(node: Node | None, instruments: list[str], kinds: dict[str, str], errors: list[InputError]) -> list[Interlock]:
+def _interlocks(node: Node | None, instruments: list[str], kinds: dict[str, str], errors: list[InputError],
+                signals: dict[str, StreamSignals]) -> list[Interlock]:
     """``interlocks: [{signal: thermocouples.ch101, max: 70 degC}, {stall: acs_board, max_gap: 2 s}, ...]``."""
     out: list[Interlock] = []
     if node is None:
@@ -832,7 +854,7 @@ def _interlocks(node: Node | None, instruments: list[str], kinds: dict[str, str]
                 errors.append(InputError(f"instrument {inst!r} is not in the procedure's instruments list", f.map["signal"].location, "signal"))
             else:
                 try:
-                    units = signal_units(sig, kinds.get(inst))
+                    units = signal_units(sig, kinds.get(inst), signals.get(inst))
                 except KeyError as exc:
                     errors.append(InputError(str(exc.args[0]), f.map["signal"].location, "signal"))
         lo = hi = None

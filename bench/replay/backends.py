@@ -9,7 +9,7 @@ backend hands requests to a simulator instead.
 
 * :class:`ReplaySerial` - a :class:`bench.sim.registry.SerialDevice` for ``sim://`` URLs (line
   protocols, the board's binary frames); :class:`AcsBoardReplay` adds the data stream re-encoded
-  from the recorded ``acs_board`` rows at the run times they were sent.
+  from the recorded board rows, in the board's frame description, at the run times they were sent.
 * :class:`ModbusTcpReplay` - Modbus TCP ADUs on an in-process stream (``modbus-tcp+stream://sim://...``,
   the default) answering recorded ADUs with the request's transaction id, in the caller's thread;
   :class:`ModbusReplayServer` - the same on a real Modbus TCP server on 127.0.0.1 (any free port;
@@ -33,7 +33,8 @@ import numpy as np
 
 from bench.replay.recording import Exchange
 from bench.sim.watlow_f4_rtu import crc16_modbus
-from drivers import acs_protocol as proto
+from drivers.board_frames import FrameDescription
+from drivers.frame_schema import builtin_description
 from drivers.can_transport import SyncBus
 
 Exhausted = Callable[[str], None]
@@ -148,8 +149,11 @@ class AcsBoardReplay(ReplaySerial):
     how late the runner stamped the first row (its ``time`` minus one sample period after the
     START_STREAM command), so the runner's batches come out as in the recording."""
 
-    def __init__(self, label, exchanges, on_exhausted, clock, stream: dict[str, np.ndarray] | None, prelude=None):
+    def __init__(self, label, exchanges, on_exhausted, clock, stream: dict[str, np.ndarray] | None, prelude=None,
+                 description: FrameDescription | None = None):
         super().__init__(label, exchanges, on_exhausted, clock, prelude)
+        self.description = description or builtin_description()
+        """The board's frames (the recorded config's frame description; ours by default)."""
         starts = np.array([ex.t_s for ex in exchanges if ex.name == "START_STREAM"], dtype=float)
         self._segment_of_start = {id(ex): k for k, ex in enumerate(e for e in exchanges if e.name == "START_STREAM")}
         n = 0 if stream is None else int(stream["time"].shape[0])
@@ -169,10 +173,13 @@ class AcsBoardReplay(ReplaySerial):
                 lag = max(0.0, float(t[a]) - (starts[k] + period))
                 self._emit_t[a:b] = t[a:b] - lag
                 self._segments.append((a, b))
-            g, ac, m, tp, _sat = proto.physical_to_raw(stream["gyro"], stream["accel"], stream["mag"], stream["temp"])
-            self._raw = (stream["counter"].astype(np.uint16),
-                         (np.round(stream["board_time"] * 1e6).astype(np.int64) % 2**32).astype(np.uint32),
-                         g, ac, m, tp, stream["status"].astype(np.uint16))
+            d = self.description
+            raw, _sat = d.to_raw({f.name: stream[f.name] for f in d.signals})
+            for f in d.recorded:
+                if f.role in ("counter", "status"):
+                    raw[f.name] = stream[f.name]
+            raw["board_time"] = d.clock_ticks(stream["board_time"])
+            self._raw = raw
         self._cur: tuple[int, int] | None = None  # [next row, end) of the segment streaming now
         self.frames_sent = 0
 
@@ -193,7 +200,7 @@ class AcsBoardReplay(ReplaySerial):
                     # replies due before these frames go first
                     while self._later and self._later[0][0] <= self._emit_t[a]:
                         self._out += self._later.popleft()[1]
-                    self._out += proto.encode_data_frames(*(r[a:j] for r in self._raw))
+                    self._out += self.description.encode_data({k: v[a:j] for k, v in self._raw.items()})
                     self.frames_sent += j - a
                     self._cur = (j, b)
         super()._advance(t_s)

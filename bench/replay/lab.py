@@ -113,7 +113,7 @@ def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: s
         for name in names:
             inst = config.instruments[name]
             if inst.driver == "acs_board":
-                ports[name] = serial(name, "", "", AcsBoardReplay, stream=rec.stream(name))
+                ports[name] = serial(name, "", "", AcsBoardReplay, stream=rec.stream(name), description=inst.frames)
             elif inst.driver in ("stepper_bench", "thermocouple_reader"):
                 ports[name] = serial(name, "", "")
             elif inst.driver == "tvac" and controller_on_rtu(inst, mode):
@@ -144,6 +144,7 @@ def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: s
         lab = Lab(clock, mode, instruments, ports, {}, {n: config.instruments[n].poll_interval_s for n in names},
                   world if mode == "sim" else None)
         lab.kinds = {n: config.instruments[n].driver for n in names}
+        lab.signals = config.signals()
         lab.config_limits = config.limits()
         rl = ReplayLab(lab, backends, registered, prelude)
         if not prelude:

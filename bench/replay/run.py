@@ -150,13 +150,13 @@ def _replay(rec, ws: Workspace, procedure_path: Path | None, runs_dir: Path, che
                    CONFIG_NOT_FOUND_HINT if rec.config_sources is not None else OLD_CONFIG_NOT_FOUND_HINT)
     for name in config.instruments:
         check_plain_name(name, rec.path, f"{layout.absolute(layout.CONFIG_TEXT)}: instruments:")
-    kinds, limits = config.kinds(), config.limits()
+    kinds, limits, signals = config.kinds(), config.limits(), config.signals()
     stored_file = procedure_file(rec, ws)
     notes = []
     try:
-        defaults = _load(ws, "procedure", lambda: load_procedure(stored_file, {}, kinds, limits)).parameters
+        defaults = _load(ws, "procedure", lambda: load_procedure(stored_file, {}, kinds, limits, signals)).parameters
         overrides = param_overrides(rec, defaults)
-        stored = _load(ws, "procedure", lambda: load_procedure(stored_file, overrides, kinds, limits))
+        stored = _load(ws, "procedure", lambda: load_procedure(stored_file, overrides, kinds, limits, signals))
     except InputError as exc:
         if procedure_path is None:
             raise
@@ -169,8 +169,8 @@ def _replay(rec, ws: Workspace, procedure_path: Path | None, runs_dir: Path, che
         procedure = stored
         text, ppath = src.procedure_text, rec.procedure_path
     else:
-        own = load_procedure(procedure_path, {}, kinds, limits).parameters
-        procedure = load_procedure(procedure_path, {k: v for k, v in overrides.items() if k in own}, kinds, limits)
+        own = load_procedure(procedure_path, {}, kinds, limits, signals).parameters
+        procedure = load_procedure(procedure_path, {k: v for k, v in overrides.items() if k in own}, kinds, limits, signals)
         text, ppath = procedure.text, str(procedure_path)
     used = {ws.recorded(p): t for p, t in procedure.sources.items()}
     for p, t in rec.sources.items():
@@ -249,7 +249,7 @@ def _replay(rec, ws: Workspace, procedure_path: Path | None, runs_dir: Path, che
                    src_keys=rec.link_keys(drivers))
     divs += compare_streams(rec.path, recorder.path, src, rep, crashed, timed=rec.clock == "virtual")
     if check_board:  # a fresh copy of the stored procedure: the replay's runner has been through the other
-        fresh = (lambda: _load(ws, "procedure", lambda: load_procedure(stored_file, overrides, kinds, limits))) if stored is not None else None
+        fresh = (lambda: _load(ws, "procedure", lambda: load_procedure(stored_file, overrides, kinds, limits, signals))) if stored is not None else None
         divs += _board_check(rec, fresh, config, ws, crashed, notes)
     divs.sort(key=lambda d: (d.t_s, 0 if d.what == "command" else 1))
     commands = len(rep_commands)
@@ -258,13 +258,14 @@ def _replay(rec, ws: Workspace, procedure_path: Path | None, runs_dir: Path, che
 
 def _check_board_streams(rec: Recording, config) -> None:
     """The recorded board streams the replay re-encodes into frames have the board's columns, each
-    of its row shape (:data:`bench.runner.ingest.ACS_COLUMNS`); :class:`InputError` otherwise."""
-    from bench.runner.ingest import ACS_COLUMNS
+    of its row shape (the columns of the board's frame description in the recorded config);
+    :class:`InputError` otherwise."""
+    from bench.runner.ingest import board_columns
 
     streams = {s.key: s for s in rec.summary.streams}
     for key in board_streams(rec, config):
         have = streams[key].shapes
-        for c in ACS_COLUMNS:
+        for c in board_columns(config.instruments[key].frames):
             if have.get(c.name) != tuple(c.shape or ()):
                 got = "missing" if c.name not in have else f"of row shape {have[c.name]}"
                 raise InputError(f"{rec.path}: cannot be replayed: column {c.name} of board stream {layout.absolute(layout.stream_path(key))} "

@@ -14,27 +14,30 @@ import numpy as np
 
 from bench.record import Column, RunRecorder
 from bench.runner.instruments import Streaming
+from drivers.board_frames import FrameDescription
+from drivers.frame_schema import builtin_description
 
 if TYPE_CHECKING:  # pragma: no cover
     from bench.clock import Clock
     from bench.runner.windows import Windows
 
-ACS_COLUMNS = [
-    Column("counter", "1", "u2"),
-    Column("board_time", "s", "f8"),
-    Column("gyro", "deg/s", "f8", (3,)),
-    Column("accel", "g", "f8", (3,)),
-    Column("mag", "uT", "f8", (3,)),
-    Column("temp", "degC", "f8", (3,)),
-    Column("status", "1", "u2"),
-]
-"""Stream layout of a sensor board: temp = (gyro die, accel die, board)."""
-
 COMPENSATED_COLUMN = Column("gyro_comp", "deg/s", "f8", (3,))
 """Added when the board has a calibration: the gyro rates compensated with NPSAT1 Eq. 2."""
 
-STREAM_COLUMNS = {"gyro": "gyro_dps", "accel": "accel_g", "mag": "mag_ut", "temp": "temp_degc"}
-"""Signal column -> batch attribute (deg/s, g, uT, degC), three axes each."""
+
+def board_columns(description: "FrameDescription | None") -> list[Column]:
+    """The run-file columns of a board's data stream from its frame description (ours when None):
+    ``counter``, ``board_time`` (s), the signals in their units, ``status``."""
+    return [Column(*c) for c in (description or builtin_description()).stream_columns()]
+
+
+ACS_COLUMNS = board_columns(None)
+"""Stream layout of our sensor board: temp = (gyro die, accel die, board) (docs/acs-board-protocol.md)."""
+
+
+def stream_columns(drv: Streaming) -> list[Column]:
+    """The run-file columns of ``drv``'s data stream (:meth:`Streaming.stream_columns`)."""
+    return [Column(name, units, dtype, shape) for name, units, dtype, shape in drv.stream_columns()]
 
 
 class StreamIngest:
@@ -59,7 +62,7 @@ class StreamIngest:
     def declare(self, name: str, drv: Streaming) -> None:
         """Declare the stream of ``name`` in the run file (before recording starts)."""
         comp = drv.compensation
-        self.keys[name] = self.rec.add_stream(name, ACS_COLUMNS + ([COMPENSATED_COLUMN] if comp is not None else []))
+        self.keys[name] = self.rec.add_stream(name, stream_columns(drv) + ([COMPENSATED_COLUMN] if comp is not None else []))
         self.stats[name] = {"frames": 0, "crc_errors": 0, "dropped_frames": 0, "garbage_bytes": 0}
         self._time_offset[name] = None
 
@@ -76,10 +79,12 @@ class StreamIngest:
         """Poll ``drv`` (instrument ``name``) and append its decoded frames; returns rows."""
         batch = drv.poll()
         stats = self.stats[name]
-        if batch.crc_errors or batch.dropped_frames or batch.garbage_bytes:
+        layout = batch.layout_errors
+        if batch.crc_errors or batch.dropped_frames or batch.garbage_bytes or layout:
             self.rec.event(
                 "stream", name,
-                f"link errors: {batch.crc_errors} CRC errors, {batch.dropped_frames} dropped frames, {batch.garbage_bytes} garbage bytes",
+                f"link errors: {batch.crc_errors} CRC errors, {batch.dropped_frames} dropped frames, {batch.garbage_bytes} garbage bytes"
+                + (f", {layout} frames whose constant fields differ from the frame description" if layout else ""),
                 t_s=self.clock.now(), step=self._step(),
             )
         stats["crc_errors"] += batch.crc_errors
@@ -92,25 +97,30 @@ class StreamIngest:
             self._time_offset[name] = self.clock.now() - float(batch.board_time_s[-1])
         time_s = batch.board_time_s + self._time_offset[name]
         extra = {"gyro_comp": drv.compensated_gyro(batch)} if drv.compensation is not None else {}
-        columns = {c: getattr(batch, attr) for c, attr in STREAM_COLUMNS.items()}
+        columns = batch.columns
         self.rec.append(self.keys[name], time_s, counter=batch.counter, board_time=batch.board_time_s, status=batch.status,
                         **columns, **extra)
         stats["frames"] += n
         self.last_frame_t[name] = float(time_s[-1])
         self._last[name] = {c: v[-1] for c, v in columns.items()}
-        self._last_gyro_mean[name] = batch.gyro_dps.mean(axis=0)
+        if "gyro" in columns:
+            self._last_gyro_mean[name] = columns["gyro"].mean(axis=0)
         if self.windows.any_open:
             for c, v in columns.items():
-                for k, axis in enumerate("xyz"):
-                    self.windows.feed(f"{name}.{c}.{axis}", time_s, v[:, k])
+                if v.ndim == 1:
+                    self.windows.feed(f"{name}.{c}", time_s, v)
+                    continue
+                if v.shape[1] == 3:
+                    for k, axis in enumerate("xyz"):
+                        self.windows.feed(f"{name}.{c}.{axis}", time_s, v[:, k])
                 if c == "temp":
-                    self.windows.feed(f"{name}.temp", time_s, v[:, 0])
+                    self.windows.feed(f"{name}.temp", time_s, v[:, 0])  # the temperatures named without an axis: the gyro's
         return n
 
     def latest(self, name: str, column: str, axis: int | None) -> float:
         """Newest value of ``name.column[.axis]``; NaN before the first frame."""
         last = self._last.get(name, {}).get(column)
-        return float("nan") if last is None else float(last[axis if axis is not None else 0])
+        return float("nan") if last is None else float(np.ravel(last)[axis if axis is not None else 0])
 
     def readings(self) -> list[str]:
         """One progress fragment per streaming instrument (mean gyro of the last batch, gyro die temperature)."""
@@ -119,5 +129,6 @@ class StreamIngest:
             g = self._last_gyro_mean.get(name)
             if g is not None:
                 t = self._last.get(name, {}).get("temp")
-                parts.append(f"gyro {g[0]:+.3f} {g[1]:+.3f} {g[2]:+.3f} deg/s" + (f", {t[0]:.1f} degC" if t is not None else ""))
+                t0 = None if t is None else float(np.ravel(t)[0])
+                parts.append(f"gyro {g[0]:+.3f} {g[1]:+.3f} {g[2]:+.3f} deg/s" + (f", {t0:.1f} degC" if t0 is not None else ""))
         return parts

@@ -45,18 +45,18 @@ class Polled(Protocol):
 
 
 class FrameBatch(Protocol):
-    """Decoded frames of one poll of a streaming instrument (``drivers.acs_protocol.DecodedBatch``)."""
+    """Decoded frames of one poll of a streaming instrument (``drivers.frame_decoder.DecodedBatch``):
+    counter, board time (s) and status per row, and the board's signal columns by name, in the
+    units of its frame description."""
 
     counter: np.ndarray
     board_time_s: np.ndarray
-    gyro_dps: np.ndarray
-    accel_g: np.ndarray
-    mag_ut: np.ndarray
-    temp_degc: np.ndarray
     status: np.ndarray
+    columns: dict[str, np.ndarray]
     crc_errors: int
     garbage_bytes: int
     dropped_frames: int
+    layout_errors: int
 
 
 @runtime_checkable
@@ -72,6 +72,9 @@ class Streaming(Protocol):
 
     def poll(self) -> FrameBatch:
         """Every frame received since the last poll."""
+
+    def stream_columns(self) -> list[tuple[str, str, str, tuple[int, ...]]]:
+        """``(name, units, dtype, row shape)`` of the recorded columns of its data stream."""
 
     def compensated_gyro(self, batch: FrameBatch) -> np.ndarray:
         """Gyro rates of ``batch`` with the board's calibration applied (deg/s, (n, 3))."""

@@ -112,6 +112,8 @@ def configure(r: "Runner", step: Step) -> tuple[str, str]:
         drv.set_moving_average(int(step.params["moving_average"]))
         done.append(f"moving average N={int(step.params['moving_average'])}")
     cfg = drv.get_config()
+    if not cfg.get("read_back", True):
+        return "done", ", ".join(done) + " (acknowledged; not read back: the board has no GET_CONFIG)"
     if "odr" in step.params and cfg["odr_hz"] != int(round(step.params["odr"])) or (
         "moving_average" in step.params and cfg["moving_avg_n"] != int(step.params["moving_average"])
     ):
@@ -341,7 +343,8 @@ def check(r: "Runner", step: Step) -> tuple[str, str]:
 def _signal_units(r: "Runner", signal: str) -> str:
     """Units of ``signal`` on this lab (``""`` if its instrument or column is unknown)."""
     try:
-        return signal_units(signal, r.lab.kinds.get(signal.split(".", 1)[0]))
+        inst = signal.split(".", 1)[0]
+        return signal_units(signal, r.lab.kinds.get(inst), r.lab.signals.get(inst))
     except KeyError:
         return ""
 

@@ -1,4 +1,11 @@
-"""Simulated ACS/sensor board: answers the ACS protocol byte for byte, data from the sensor model.
+"""Simulated sensor board: answers its frame description byte for byte, data from the sensor model.
+
+The board's wire format is data (:class:`drivers.board_frames.FrameDescription`; ours by default,
+docs/acs-board-protocol.md; a lab's own, docs/frame-descriptions.md): the commands it accepts,
+their replies and NAKs, the data frame's fields and status bits all follow it. Fields bench has
+physics for are filled from the model and the world (``gyro``, ``accel``, ``mag``, temperatures
+from the unit's temperature, the counter, the board clock, the status bits); any other field
+carries its description's ``sim`` value.
 
 The simulator is clock-driven and lazy: :meth:`AcsBoardSim.advance` produces, in one vectorised
 batch, every data frame the board would have sent up to a run time, so a virtual clock can jump an
@@ -19,7 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import struct
 import threading
 from typing import Any
 from dataclasses import dataclass
@@ -33,10 +39,12 @@ from bench.model.gyro import GyroModel
 from bench.model.imu_simple import Environment, ImuModelParams, SimpleImuModel
 from bench.model.inputs import SensorInputs
 from bench.sim.world import World
-from drivers import acs_protocol as proto
-from drivers.acs_protocol import FrameType, NakCode, Status
+from drivers import board_frames
+from drivers.acs_protocol import MOVING_AVG_MAX
+from drivers.board_frames import FrameDescription
+from drivers.frame_decoder import FrameDecoder
+from drivers.frame_schema import builtin_description
 
-BOARD_TIME_WRAP = 2**32
 PRESSURE_STEP_S = 10.0
 """Largest spacing (s) of the chamber-pressure samples interpolated for the gyro model."""
 
@@ -107,7 +115,9 @@ class AcsBoardSim:
         identity: AcsBoardIdentity | None = None,
         baudrate: int = 115200,
         bit_fail_mask: int = 0,
+        description: FrameDescription | None = None,
     ):
+        self.description = d = description or builtin_description()
         self.clock = clock
         self.world = world
         self.model = model
@@ -115,24 +125,28 @@ class AcsBoardSim:
         self.baudrate = baudrate
         self.bit_fail_mask = bit_fail_mask
         self._lock = threading.RLock()
-        self._decoder = proto.FrameDecoder(accept_unknown_types=True)
+        self._decoder = FrameDecoder(d, accept_unknown_types=True)
         self._out = bytearray()
-        self.sensor_power = False
+        up = d.power_up
+        self.sensor_power = bool(up["sensors_on"])
         self.power_on_t = 0.0
         self.streaming = False
-        self.odr_hz = 100
-        self.moving_avg_n = 1
+        self.odr_hz = up["odr_hz"]
+        self.moving_avg_n = up["moving_avg_n"]
         self._history: np.ndarray | None = None  # last N-1 raw samples (rows, 9)
         self._stream_t0 = 0.0
         self._next_k = 0
+        if up["streaming"]:
+            self._start_stream(clock.now())
         self._counter = 0
         self._bit_failed = False
         self.frames_sent = 0
 
     # ---- link -------------------------------------------------------------------------------
     def max_odr_hz(self) -> int:
-        """Highest output data rate the UART can carry: 8N1 = 10 bits per byte, 38-byte frames."""
-        return int(self.baudrate / 10 // proto.DATA_FRAME_LEN)
+        """Highest output data rate the UART can carry (8N1 = 10 bits per byte, one data frame per
+        sample) and the board allows."""
+        return int(min(self.baudrate / 10 // self.description.data_frame_len, self.description.max_odr_hz))
 
     def set_baudrate(self, baudrate: int) -> None:
         with self._lock:
@@ -146,83 +160,82 @@ class AcsBoardSim:
             batch = self._decoder.feed(bytes(data))
             if batch.crc_errors:
                 for _ in range(batch.crc_errors):
-                    self._nak(0, NakCode.CRC_ERROR)
+                    self._nak(0, "crc_error")
             for ftype, payload in batch.replies:
                 self._handle(ftype, payload)
 
     def _reply(self, ftype: int, payload: bytes = b"") -> None:
-        self._out += proto.encode_frame(ftype, payload)
+        self._out += self.description.encode_frame(ftype, payload)
 
-    def _nak(self, command: int, code: int) -> None:
-        self._reply(FrameType.NAK, bytes([command & 0xFF, int(code)]))
+    def _nak(self, command: int, reason: str) -> None:
+        """The NAK of ``reason`` (the description's code; no answer where it has none)."""
+        nak = self.description.nak
+        if nak is None or nak.codes.get(reason) is None:
+            return
+        self._reply(nak.id, board_frames.pack_items(self.description, nak.payload, {"command": command & 0xFF, "code": nak.codes[reason]}))
 
     def _handle(self, ftype: int, payload: bytes) -> None:
-        expected_len = proto.COMMAND_PAYLOAD_LEN
-        if ftype not in expected_len:
-            self._nak(ftype, NakCode.UNKNOWN_COMMAND)
+        d = self.description
+        cmd = d.command_by_id(ftype)
+        if cmd is None:
+            self._nak(ftype, "unknown_command")
             return
-        if len(payload) != expected_len[ftype]:
-            self._nak(ftype, NakCode.BAD_LENGTH)
+        values = board_frames.unpack_items(d, cmd.payload, payload)
+        if values is None:
+            self._nak(ftype, "bad_length")
             return
-        ack = ftype | 0x80
+        if ("sensors_on" in cmd.requires and not self.sensor_power) or ("not_streaming" in cmd.requires and self.streaming):
+            self._nak(ftype, "not_allowed_in_state")
+            return
         now = self.clock.now()
-        if ftype == FrameType.IDENTIFY:
+        op = cmd.op
+        if op == "set_odr" and not 1 <= values["odr_hz"] <= self.max_odr_hz():  # MPU-6000 ODR range 4..1000 Hz (ESTCube Table 2.1)
+            self._nak(ftype, "bad_value")
+            return
+        if op == "set_moving_avg" and not 1 <= values["n"] <= MOVING_AVG_MAX:
+            self._nak(ftype, "bad_value")
+            return
+        if op == "sensor_power" and values["power"] not in (0, 1):
+            self._nak(ftype, "bad_value")
+            return
+        answer: dict = {}
+        if op == "identify":
             i = self.identity
-            self._reply(ack, f"{i.vendor};{i.model};{i.serial};{i.firmware}".encode("ascii", "replace")[: proto.MAX_PAYLOAD])
-        elif ftype == FrameType.START_STREAM:
-            if not self.sensor_power:
-                self._nak(ftype, NakCode.NOT_ALLOWED_IN_STATE)
-                return
+            answer = {"vendor": i.vendor, "model": i.model, "serial": i.serial, "firmware": i.firmware}
+        elif op == "start_stream":
             if not self.streaming:
-                self.streaming = True
-                self._stream_t0 = now
-                self._next_k = 1  # first sample one period after the command
-            self._reply(ack)
-        elif ftype == FrameType.STOP_STREAM:
+                self._start_stream(now)
+        elif op == "stop_stream":
             self.streaming = False
-            self._reply(ack)
-        elif ftype == FrameType.SET_ODR:
-            (hz,) = struct.unpack("<H", payload)
-            if hz < 1 or hz > min(1000, self.max_odr_hz()):  # MPU-6000 ODR range 4..1000 Hz (ESTCube Table 2.1)
-                self._nak(ftype, NakCode.BAD_VALUE)
-                return
+        elif op == "set_odr":
             if self.streaming:
                 self._stream_t0 = self._stream_t0 + (self._next_k - 1) / self.odr_hz
                 self._next_k = 1
-            self.odr_hz = hz
-            self._reply(ack)
-        elif ftype == FrameType.SET_MOVING_AVG:
-            n = payload[0]
-            if not 1 <= n <= proto.MOVING_AVG_MAX:
-                self._nak(ftype, NakCode.BAD_VALUE)
-                return
-            self.moving_avg_n = n
+            self.odr_hz = values["odr_hz"]
+        elif op == "set_moving_avg":
+            self.moving_avg_n = values["n"]
             self._history = None  # re-filled with the next sample
-            self._reply(ack)
-        elif ftype == FrameType.RUN_BIT:
-            if not self.sensor_power:
-                self._nak(ftype, NakCode.NOT_ALLOWED_IN_STATE)
-                return
+        elif op == "run_bit":
             self._bit_failed = self.bit_fail_mask != 0
-            self._reply(ack, struct.pack("<H", self.bit_fail_mask))
-        elif ftype == FrameType.SENSOR_POWER:
-            on = payload[0]
-            if on not in (0, 1):
-                self._nak(ftype, NakCode.BAD_VALUE)
-                return
+            answer = {"failed_mask": self.bit_fail_mask}
+        elif op == "sensor_power":
+            on = bool(values["power"])
             if on and not self.sensor_power:
                 self.power_on_t = now
                 self._history = None
             if not on:
                 self.streaming = False
-            self.sensor_power = bool(on)
+            self.sensor_power = on
             self.world.set_unit_power(now, self.sensor_power)
-            self._reply(ack)
-        elif ftype == FrameType.GET_CONFIG:
-            self._reply(
-                ack,
-                proto.encode_config(self.odr_hz, self.moving_avg_n, self.streaming, self.sensor_power, self.baudrate),
-            )
+        elif op == "get_config":
+            answer = {"odr_hz": self.odr_hz, "moving_avg_n": self.moving_avg_n, "streaming": int(self.streaming),
+                      "sensor_power": int(self.sensor_power), "baud": self.baudrate}
+        self._reply(cmd.reply.id, board_frames.build_reply(d, op, answer, payload))
+
+    def _start_stream(self, now: float) -> None:
+        self.streaming = True
+        self._stream_t0 = now
+        self._next_k = 1  # first sample one period after the command
 
     # ---- board -> host ----------------------------------------------------------------------
     def advance(self, t_s: float) -> None:
@@ -259,17 +272,35 @@ class AcsBoardSim:
             gyro, accel, mag = self.model.sample(t - self.power_on_t, temp, env, self.odr_hz)
         raw = np.concatenate([gyro, accel, mag], axis=1)
         raw = self._moving_average(raw)
-        temps = np.repeat(temp[:, None], 3, axis=1)
-        gyro_raw, accel_raw, mag_raw, temp_raw, saturated = proto.physical_to_raw(raw[:, 0:3], raw[:, 3:6], raw[:, 6:9], temps)
-        status = np.full(n, int(Status.STREAMING | Status.SENSOR_POWER), dtype=np.uint16)
-        if self._bit_failed:
-            status |= np.uint16(Status.BIT_FAILED)
-        status[np.asarray(saturated, dtype=bool)] |= np.uint16(Status.SATURATED)
-        counter = ((self._counter + np.arange(n)) % 65536).astype(np.uint16)
-        self._counter = (self._counter + n) % 65536
-        board_us = (np.round(t * 1e6).astype(np.int64) % BOARD_TIME_WRAP).astype(np.uint32)
+        d = self.description
+        physical = {}
+        for f in d.signals:
+            if f.name in ("gyro", "accel", "mag"):
+                k = ("gyro", "accel", "mag").index(f.name)
+                physical[f.name] = raw[:, 3 * k: 3 * k + 3]
+            elif f.quantity == "temperature":  # every temperature sensor of the board is at the unit's temperature
+                physical[f.name] = temp if f.count == 1 else np.repeat(temp[:, None], f.count, axis=1)
+            else:
+                physical[f.name] = np.full((n,) + f.shape, f.sim)
+        wire, saturated = d.to_raw(physical)
+        bits = d.status_bits
+        status_f = d.field("status")
+        if status_f is not None:
+            status = np.full(n, bits.get("always", 0) | bits.get("streaming", 0) | (bits.get("sensor_power", 0) if self.sensor_power else 0),
+                             dtype=np.uint64)
+            if self._bit_failed:
+                status |= np.uint64(bits.get("bit_failed", 0))
+            if saturated is not None and bits.get("saturated"):
+                status[np.asarray(saturated, dtype=bool)] |= np.uint64(bits["saturated"])
+            wire["status"] = status
+        counter_f = d.field("counter")
+        if counter_f is not None:
+            mod = counter_f.modulus
+            wire["counter"] = (self._counter + np.arange(n)) % mod
+            self._counter = (self._counter + n) % mod
+        wire["board_time"] = d.clock_ticks(t)
         self.frames_sent += n
-        return proto.encode_data_frames(counter, board_us, gyro_raw, accel_raw, mag_raw, temp_raw, status)
+        return d.encode_data(wire)
 
     def _pressure_torr(self, t: np.ndarray) -> np.ndarray:
         """Chamber pressure (Torr) at sample times ``t``: the chamber answers one time at a time,
@@ -323,4 +354,4 @@ class AcsBoardSim:
     def discard_input(self) -> None:
         """Forget partial command bytes (host reset its output buffer / reopened the port)."""
         with self._lock:
-            self._decoder = proto.FrameDecoder(accept_unknown_types=True)
+            self._decoder = FrameDecoder(self.description, accept_unknown_types=True)

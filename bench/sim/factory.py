@@ -112,7 +112,7 @@ def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_por
     else:
         model = SimpleImuModel(inst.sim.model, rng)
     dev = AcsBoardSim(clock, world, model, AcsBoardIdentity(serial=inst.sim.serial), baudrate=inst.baudrate,
-                      bit_fail_mask=inst.sim.bit_fail_mask)
+                      bit_fail_mask=inst.sim.bit_fail_mask, description=inst.frames)
     if inst.sim.transport != "can":
         return _serial_only(name, dev, inst.sim.seed)
     from bench.sim.can_serial_bridge import CanSerialBridge

@@ -50,6 +50,8 @@ from drivers.watlow_f4 import (ALARM_HIGH_DEVIATION, ALARM_INPUT_1_ERROR, ALARM_
 START_TIMEOUT_S = 5.0  # longest wait for the server thread to listen (our choice)
 OPEN_SENSOR_CODE = 65  # "Open" in the F4T/D4T input error enum (protocols.md section 1 [V])
 DEFAULT_ALARM_BAND_C = 5.0  # our choice [U]: deviation alarm when |PV - SP| > 5 °C
+SENSOR_THERMOCOUPLE = 0  # registers 600/610: 0 thermocouple (protocols.md section 1, ESPEC [V]): both inputs are TCs
+UNITS_TEMPERATURE = 0  # registers 608/618: 0 temperature, the unit then in register 901 (ESPEC get_loop_units [V])
 RUN_STATE_CONSTANT = 1  # register 200: 0,1 = constant set point (protocols.md section 1 [V])
 FAULTS = ("exception", "timeout", "runaway", "stuck", "open_sensor", "disconnect")
 _LIMITS = {r.address: (r.decode(0x8000 if r.signed else 0), r.decode(0x7FFF if r.signed else 0xFFFF)) for r in BY_ADDRESS.values()}
@@ -111,6 +113,11 @@ class WatlowF4Sim:
             "sp_low_limit_1": (lambda: self.chamber.set_point_limits_c[0], None),
             "sp_high_limit_1": (lambda: self.chamber.set_point_limits_c[1], None),
             "decimals_1": (lambda: EXPECTED_DECIMALS, None),
+            "decimals_2": (lambda: EXPECTED_DECIMALS, None),
+            "sensor_type_1": (lambda: SENSOR_THERMOCOUPLE, None),
+            "sensor_type_2": (lambda: SENSOR_THERMOCOUPLE, None),
+            "units_1": (lambda: UNITS_TEMPERATURE, None),
+            "units_2": (lambda: UNITS_TEMPERATURE, None),
             "temp_unit": (lambda: TEMP_UNIT_C, None),
             "alarm_status": (self._alarm_bits, None),
             "input_1_error": (lambda: self._input_error(1), None),
