@@ -163,14 +163,14 @@ def test_after_a_timeout_a_late_answer_is_not_taken_for_the_next():
     channel back in step with $G before its next line, dropping the late ok."""
     script = [(b"$J=G91G21X1.000F60.000\n", b""), (b"$G\n", b"ok\r\n[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]\r\nok\r\n"),
               (b"$I\n", b"[VER:1.1h.20190830:STEPPER_BENCH:EC2-01]\r\n[OPT:V,15,128]\r\nok\r\n")]
-    from tests.golden.grbl_replay import Exchange, TranscriptPort
+    from tests.golden.grbl_replay import Exchange, transcript_port
 
-    port = TranscriptPort([Exchange(h, f) for h, f in script])
+    port = transcript_port([Exchange(h, f) for h, f in script])
     ch = grbl.GrblChannel(port, 0.01, "bench")
     with pytest.raises(InstrumentTimeout):
         ch.transact("$J=G91G21X1.000F60.000")
     assert grbl.parse_build_info(ch.transact("$I"))[1] == "STEPPER_BENCH:EC2-01"
-    assert ch.discarded == ["ok"] and ch.in_step and port.done()
+    assert ch.discarded == ["ok"] and ch.in_step and port.played()
 
 
 def test_open_waits_out_a_dtr_reset():

@@ -59,6 +59,21 @@ class BenchSpeedFit:
         return asdict(self)
 
 
+def _levels(key: str, x: np.ndarray, t: np.ndarray, speed_key: str) -> tuple[list[dict], float, list[int]]:
+    """Per level of ``x`` (``key``): repeats, mean and (population) standard deviation of the
+    rotation times ``t`` (s) and the speed they give (deg/s, ``speed_key``); u_A, the mean of
+    the standard deviations (NaN without repeats, Eq. 3.2); the repeats per level."""
+    out, stds, repeats = [], [], []
+    for lv in np.unique(x):
+        tt = t[x == lv]
+        stds.append(float(np.std(tt)) if tt.size > 1 else float("nan"))
+        repeats.append(int(tt.size))
+        out.append({key: float(lv), "repeats": int(tt.size), "mean_time_s": float(tt.mean()),
+                    "std_time_s": stds[-1], speed_key: 360.0 / float(tt.mean())})
+    valid = [sd for sd in stds if not math.isnan(sd)]
+    return out, (float(np.mean(valid)) if valid else float("nan")), repeats
+
+
 def fit_bench_speed(n: np.ndarray, rotation_time_s: np.ndarray, resolution_s: float = 0.01) -> BenchSpeedFit:
     """Fit k and b from timings; ``resolution_s`` is the stopwatch resolution Δ (s).
 
@@ -86,17 +101,8 @@ def fit_bench_speed(n: np.ndarray, rotation_time_s: np.ndarray, resolution_s: fl
     else:
         u_slope = u_intercept = float("nan")
     k = 1.0 / slope
-    per_level = []
-    stds = []
-    repeats = []
-    for lv in levels:
-        tt = t[n == lv]
-        stds.append(float(np.std(tt)) if tt.size > 1 else float("nan"))
-        repeats.append(tt.size)
-        per_level.append({"n": float(lv), "repeats": int(tt.size), "mean_time_s": float(tt.mean()),
-                          "std_time_s": stds[-1], "speed_dps": 360.0 / float(tt.mean())})
-    valid = [s for s in stds if not math.isnan(s)]
-    u_a = float(np.mean(valid)) if valid else float("nan")
+    per_level, u_a, repeats = _levels("n", n, t, "speed_dps")
+    valid = not math.isnan(u_a)
     u_b_sw = resolution_s / math.sqrt(3)
     u_c = math.sqrt(u_a**2 + u_b_sw**2) if valid else u_b_sw
     t_min = float(min(p["mean_time_s"] for p in per_level))
@@ -157,15 +163,8 @@ def fit_grbl_steps(rate_dps: np.ndarray, rotation_time_s: np.ndarray, set_steps_
     sxx = float(x @ x)
     c = float(x @ t) / sxx
     resid = t - c * x
-    levels, stds, repeats = [], [], []
-    for lv in np.unique(v):
-        tt = t[v == lv]
-        stds.append(float(np.std(tt)) if tt.size > 1 else float("nan"))
-        repeats.append(tt.size)
-        levels.append({"rate_dps": float(lv), "repeats": int(tt.size), "mean_time_s": float(tt.mean()),
-                       "std_time_s": stds[-1], "true_rate_dps": 360.0 / float(tt.mean())})
-    valid = [sd for sd in stds if not math.isnan(sd)]
-    u_a = float(np.mean(valid)) if valid else 0.0
+    levels, u_a, repeats = _levels("rate_dps", v, t, "true_rate_dps")
+    u_a = 0.0 if math.isnan(u_a) else u_a
     u_b_sw = resolution_s / math.sqrt(3)
     u_c = math.sqrt(u_a**2 + u_b_sw**2)
     u_timing = u_c / math.sqrt(sxx)

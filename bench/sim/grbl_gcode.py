@@ -17,7 +17,7 @@ import copy
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
+import struct
 
 # report.h status codes
 OK = 0
@@ -51,7 +51,12 @@ TOOL_LENGTH_AXIS = 2  # config.h TOOL_LENGTH_OFFSET_AXIS Z_AXIS
 
 # modal values as gcode.h numbers them
 MOTION_SEEK, MOTION_LINEAR, MOTION_NONE = 0, 1, 80
-_F32 = np.float32
+_F32_STRUCT = struct.Struct("<f")
+
+
+def f32(x: float) -> float:
+    """``x`` rounded to single precision (the AVR's ``float``)."""
+    return _F32_STRUCT.unpack(_F32_STRUCT.pack(x))[0]
 
 
 def read_float(line: str, i: int) -> tuple[float, int] | None:
@@ -80,16 +85,16 @@ def read_float(line: str, i: int) -> tuple[float, int] | None:
         i += 1
     if not ndigit:
         return None
-    f = _F32(intval)
+    f = f32(intval)
     if f != 0:
         while exp <= -2:
-            f = _F32(f * _F32(0.01))
+            f = f32(f * f32(0.01))
             exp += 2
         if exp < 0:
-            f = _F32(f * _F32(0.1))
+            f = f32(f * f32(0.1))
         elif exp > 0:
             while exp > 0:
-                f = _F32(f * _F32(10.0))
+                f = f32(f * 10.0)
                 exp -= 1
     return (-float(f) if neg else float(f)), i
 

@@ -237,14 +237,32 @@ class Motion:
     def reported_speed(self) -> float:
         """The rate GRBL reports (stepper.c st_get_realtime_rate): the planned speed (mm/s) at the
         end of the prepared segments."""
-        if not self.running:
+        if not self.running or not self.blocks:
             return 0.0
-        t = self.t + self.lag_s()
-        v = 0.0
-        for seg in self.profile():
-            if seg.t_s <= t < seg.t_s + seg.duration_s:
-                return max(0.0, seg.v + seg.a * (t - seg.t_s))
-        return v
+        target = self.t + self.lag_s()
+        saved = self._save()
+        popped: list[Block] = []
+        try:
+            for _ in range(10000):
+                if not self.blocks or self.t >= target:
+                    break
+                b = self.blocks[0]
+                a, dt = self._phase(b)
+                if self.stopping and self.speed <= _EPS_V:
+                    break
+                if dt > target - self.t:
+                    self._apply(b, a, target - self.t, full=False)
+                    break
+                if self._apply(b, a, dt):
+                    popped.append(self.blocks.popleft())
+                    self._replan_from_running()
+            return self.speed if self.blocks else 0.0
+        finally:
+            for b in reversed(popped):
+                self.blocks.appendleft(b)
+            self._restore(saved)
+            if not self.stopping:
+                self._replan()
 
     def flush(self) -> None:
         """Drop every queued block (jog cancel done, reset); the position stays where it is."""

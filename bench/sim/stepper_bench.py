@@ -30,9 +30,9 @@ import threading
 from dataclasses import dataclass, field
 from typing import Iterator
 
-import numpy as np
 
 from bench.sim import grbl_gcode as gc
+from bench.sim.grbl_gcode import f32
 from bench.sim.grbl_motion import PLANNER_BLOCKS, AxisLimits, Motion
 from bench.sim.registry import ReplyBuffer
 from bench.sim.stage import RotatingStage
@@ -61,7 +61,6 @@ DEFAULT_SETTINGS: dict[int, float] = {
 EEPROM (docs/golden/grbl-transcripts/boot-blank-eeprom.txt), in its report order."""
 _INTEGER_SETTINGS = frozenset((0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 32))
 _RPM_SETTINGS = frozenset((30, 31))
-_F32 = np.float32
 
 STATUS_OK = 0
 _IDLE_ERROR, _GC_LOCK, _OVERFLOW, _INVALID_STATEMENT, _BAD_NUMBER = 8, 9, 11, 3, 2
@@ -71,22 +70,27 @@ _SETTING_DISABLED, _STEP_PULSE_MIN, _NEGATIVE, _SOFT_LIMIT_ERROR = 5, 6, 4, 10
 def grbl_float(value: float, decimals: int) -> str:
     """print.c printFloat: ``value`` with ``decimals`` places, rounded as the firmware does in
     single precision (a negative value that rounds to zero keeps its sign)."""
-    n = _F32(value)
+    if value == 0.0 and not math.copysign(1.0, value) < 0:
+        return _ZEROS[decimals]
+    n = f32(value)
     sign = ""
     if n < 0:
         sign, n = "-", -n
     d = decimals
     while d >= 2:
-        n = _F32(n * _F32(100))
+        n = f32(n * 100.0)
         d -= 2
     if d:
-        n = _F32(n * _F32(10))
-    n = _F32(n + _F32(0.5))
+        n = f32(n * 10.0)
+    n = f32(n + 0.5)
     digits = str(int(n))
     if decimals:
         digits = digits.rjust(decimals + 1, "0")
         return f"{sign}{digits[:-decimals]}.{digits[-decimals:]}"
     return sign + digits
+
+
+_ZEROS = {d: ("0." + "0" * d if d else "0") for d in range(8)}
 
 
 @dataclass
@@ -106,9 +110,9 @@ def bench_eeprom(steps_per_deg: float, max_rate_deg_min: float, accel_deg_s2: fl
     """An EEPROM configured as the bench: the axis's steps per degree, max rate and acceleration."""
     ee = Eeprom(build_info=build_info)
     k = AXES.index(axis)
-    ee.settings[100 + k] = float(_F32(steps_per_deg))
-    ee.settings[110 + k] = float(_F32(max_rate_deg_min))
-    ee.settings[120 + k] = float(_F32(accel_deg_s2))
+    ee.settings[100 + k] = f32(steps_per_deg)
+    ee.settings[110 + k] = f32(max_rate_deg_min)
+    ee.settings[120 + k] = f32(accel_deg_s2)
     return ee
 
 
@@ -259,7 +263,7 @@ class StepperBenchSim(ReplyBuffer):
         if n in _RPM_SETTINGS:
             return grbl_float(v, 0)
         if 120 <= n <= 122:
-            return grbl_float(float(_F32(_F32(_F32(v) * _F32(60)) * _F32(60)) / _F32(3600)), 3)
+            return grbl_float(f32(f32(f32(f32(v) * 60.0) * 60.0) / 3600.0), 3)
         return grbl_float(v, 3)
 
     def _report_settings(self) -> None:
@@ -275,7 +279,7 @@ class StepperBenchSim(ReplyBuffer):
             k = p - 100
             if not (k % 10 < 3 and k // 10 < 4):
                 return _INVALID_STATEMENT
-            self.eeprom.settings[p] = float(_F32(value))
+            self.eeprom.settings[p] = f32(value)
             self.motion.limits = self._limits()
             return STATUS_OK
         iv = int(math.trunc(value)) & 0xFF
@@ -291,7 +295,7 @@ class StepperBenchSim(ReplyBuffer):
             self.eeprom.settings[20] = 0
         if p == 13:
             self.wco_counter = 0
-        self.eeprom.settings[p] = float(iv) if p in _INTEGER_SETTINGS else float(_F32(value))
+        self.eeprom.settings[p] = float(iv) if p in _INTEGER_SETTINGS else f32(value)
         if p == 11:
             self.motion.limits = self._limits()
         return STATUS_OK
@@ -420,11 +424,11 @@ class StepperBenchSim(ReplyBuffer):
         """report.c report_realtime_status."""
         steps = self.motion.position_steps()
         spmm = [self._setting(100 + k) for k in range(3)]
-        pos = [float(_F32(s) / _F32(m)) for s, m in zip(steps, spmm)]
+        pos = [f32(f32(s) / f32(m)) for s, m in zip(steps, spmm)]
         mask = int(self._setting(10))
         wco = [self.gc.coord_system[k] + self.gc.coord_offset[k] + (self.gc.tool_length_offset if k == 2 else 0.0) for k in range(3)]
         if not mask & 1:
-            pos = [float(_F32(p) - _F32(w)) for p, w in zip(pos, wco)]
+            pos = [f32(p - f32(w)) for p, w in zip(pos, wco)]
         parts = [f"<{self._state_text()}", ("|MPos:" if mask & 1 else "|WPos:") + self._axes(pos)]
         if mask & 2:
             parts.append(f"|Bf:{PLANNER_BLOCKS - len(self.motion.blocks)},{RX_BUFFER_SIZE - len(self._rx)}")
@@ -471,6 +475,11 @@ class StepperBenchSim(ReplyBuffer):
         return min(times) if times else None
 
     def _advance(self, now: float) -> None:
+        if (self._task is None and not self._rx and not self.motion.running and self._reset_until is None
+                and self._cycle_stop is None):
+            self.t = max(self.t, now)  # nothing runs, nothing waits: time just passes
+            self.motion.t = self.t
+            return
         for _ in range(100000):
             self._step_main()
             t_next = self._next_event()
@@ -528,7 +537,7 @@ class StepperBenchSim(ReplyBuffer):
 
     def _sync_gc_position(self) -> None:
         steps = self.motion.position_steps()
-        self.gc.position = [float(_F32(s) / _F32(self._setting(100 + k))) for k, s in enumerate(steps)]
+        self.gc.position = [f32(f32(s) / f32(self._setting(100 + k))) for k, s in enumerate(steps)]
 
     # ---- the main loop: lines -------------------------------------------------------------------
     def _suspended(self) -> bool:

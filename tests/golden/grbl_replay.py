@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 from bench.clock import VirtualClock
 from bench.sim.stepper_bench import StepperBenchSim, bench_eeprom
+from tests.golden.expected_exchange import ExpectedExchangePort
 from tests.golden.grbl_transcript import Transcript
 
 GRBL_SIM_PINS = "PXYZRHS"
@@ -286,53 +287,12 @@ def play(tr: Transcript, sim: StepperBenchSim | None = None, clock: VirtualClock
 
 
 # ---- the driver against a scripted peer playing a transcript --------------------------------------
-class TranscriptPort:
-    """A pyserial-like port playing the firmware's side of a transcript: the host must write the
-    transcript's host bytes, in order (AssertionError naming the place otherwise); the firmware
-    bytes after them become readable once everything before them has been written."""
-
-    def __init__(self, exchanges_: list[Exchange], baudrate: int = 115200):
-        self.exchanges = exchanges_
-        self.baudrate = baudrate
-        self.timeout = 0.5
-        self.is_open = True
-        self.index = 0
-        self._written = bytearray()
-        self._rx = bytearray()
-
-    def write(self, data: bytes) -> int:
-        self._written += bytes(data)
-        while self._written:
-            if self.index >= len(self.exchanges):
-                raise AssertionError(f"wrote {bytes(self._written)!r} after the end of the transcript")
-            want = self.exchanges[self.index].host
-            if self._written.startswith(want):
-                del self._written[:len(want)]
-                self._rx += self.exchanges[self.index].firmware
-                self.index += 1
-            elif want.startswith(bytes(self._written)):
-                break
-            else:
-                raise AssertionError(f"host unit {self.index}: wrote {bytes(self._written)!r}, the firmware was sent {want!r}")
-        return len(data)
-
-    @property
-    def in_waiting(self) -> int:
-        return len(self._rx)
-
-    def read(self, size: int = 1) -> bytes:
-        out = bytes(self._rx[:size])
-        del self._rx[:size]
-        return out
-
-    def reset_input_buffer(self) -> None:
-        self._rx.clear()
-
-    def close(self) -> None:
-        self.is_open = False
-
-    def done(self) -> bool:
-        return self.index == len(self.exchanges) and not self._written
+def transcript_port(exs: list[Exchange], baudrate: int = 115200) -> ExpectedExchangePort:
+    """A pyserial-like port playing the firmware's side of a transcript (the scripted peer of
+    tests/golden/expected_exchange.py): the host must write the transcript's host units in order;
+    the firmware bytes after each become readable once it is written. Pushed lines the driver did
+    not read before its next write (a ``[MSG:...]`` after the welcome) may stay unread, as they did."""
+    return ExpectedExchangePort([(ex.host, ex.firmware or None) for ex in exs], baudrate=baudrate, unread_ok=True)
 
 
 _JOG = re.compile(rb"^\$J=G91G21[XYZ](?P<dist>-?\d+\.\d+)F(?P<feed>\d+\.\d+)\n$")

@@ -248,27 +248,35 @@ SESSIONS: dict[str, tuple[Callable[[Raw], None], str, str]] = {
 }
 
 
+EEPROM_IMAGE = Path(tempfile.gettempdir()) / "grbl-bench-eeprom.dat"
+"""Where configure-bench leaves the bench's EEPROM for the sessions that start from it."""
+
+
+def _record(fw: GrblFirmware, session: Callable[[Raw], None], path: Path, title: str, eeprom: str,
+            notes: list[str] | None = None) -> None:
+    """Play ``session`` on ``fw``, stop it, write the transcript to ``path``."""
+    raw = Raw(fw)
+    try:
+        session(raw)
+        raw.wait(0.3)
+    finally:
+        raw.close()
+        fw.stop()
+    write_transcript(path, fw.events, title=title, eeprom=eeprom, notes=notes or [])
+    print(f"recorded {path.stem}", flush=True)
+
+
 def record_all(binary: Path, outdir: Path, only: list[str] | None = None) -> None:
     """Record every session (or those named in ``only``) into ``outdir/NAME.txt``; the
     configured EEPROM image is made by ``configure-bench`` first."""
-    eeprom_image = Path(tempfile.gettempdir()) / "grbl-bench-eeprom.dat"
     for name, (session, eeprom, title) in SESSIONS.items():
         if only and name not in only and name != "configure-bench":
             continue
-        fw = GrblFirmware(binary, eeprom=eeprom_image if eeprom == "bench" else None)
-        raw = Raw(fw)
-        try:
-            session(raw)
-            raw.wait(0.3)
-        finally:
-            raw.close()
-            fw.stop()
-        write_transcript(outdir / f"{name}.txt", fw.events, title=title,
-                         eeprom=BLANK_EEPROM if eeprom == "blank" else BENCH_EEPROM)
+        fw = GrblFirmware(binary, eeprom=EEPROM_IMAGE if eeprom == "bench" else None)
+        _record(fw, session, outdir / f"{name}.txt", title, BLANK_EEPROM if eeprom == "blank" else BENCH_EEPROM)
         if name == "configure-bench":
-            eeprom_image.write_bytes(fw.eeprom())
+            EEPROM_IMAGE.write_bytes(fw.eeprom())
         fw.cleanup()
-        print(f"recorded {name}", flush=True)
 
 
 # ---- motion profiles in the firmware's own time ------------------------------------------------
@@ -325,20 +333,11 @@ PROFILES: dict[str, tuple[Callable[[Raw], None], str]] = {
 def record_profiles(binary: Path, outdir: Path, only: list[str] | None = None) -> None:
     """Record each profile session with grbl-sim's step log (``NAME.steps``: its simulated time,
     s, and the X, Y, Z positions in steps every :data:`PROFILE_STEP_S`)."""
-    eeprom_image = Path(tempfile.gettempdir()) / "grbl-bench-eeprom.dat"
     for name, (session, title) in PROFILES.items():
         if only and name not in only:
             continue
         steps = (outdir / f"{name}.steps").resolve()
-        fw = GrblFirmware(binary, eeprom=eeprom_image, step_file=steps, report_step_s=PROFILE_STEP_S)
-        raw = Raw(fw)
-        try:
-            session(raw)
-            raw.wait(0.3)
-        finally:
-            raw.close()
-            fw.stop()
-        write_transcript(outdir / f"{name}.txt", fw.events, title=title, eeprom=BENCH_EEPROM,
-                         notes=[f"step log: {name}.steps (grbl_sim.exe -s {name}.steps -r {PROFILE_STEP_S:g})"])
+        fw = GrblFirmware(binary, eeprom=EEPROM_IMAGE, step_file=steps, report_step_s=PROFILE_STEP_S)
+        _record(fw, session, outdir / f"{name}.txt", title, BENCH_EEPROM,
+                [f"step log: {name}.steps (grbl_sim.exe -s {name}.steps -r {PROFILE_STEP_S:g})"])
         fw.cleanup()
-        print(f"recorded {name}", flush=True)

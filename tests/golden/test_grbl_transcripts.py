@@ -29,8 +29,8 @@ from bench.sim.stepper_bench import StepperBenchSim, bench_eeprom
 from drivers import grbl
 from drivers.errors import NotConfigured
 from drivers.stepper_bench import BenchSetup, StepperBench
-from tests.golden.grbl_replay import (BENCH_EEPROM, TranscriptPort, _rest_steps_if_stopped_at, driver_calls, exchanges, play,
-                                      start_units, stop_moment)
+from tests.golden.grbl_replay import (BENCH_EEPROM, _rest_steps_if_stopped_at, driver_calls, exchanges, play, start_units,
+                                      stop_moment, transcript_port)
 from tests.golden.grbl_transcript import TRANSCRIPTS, Transcript, all_transcripts, read_transcript
 
 ALL = all_transcripts()
@@ -172,8 +172,8 @@ def _session(name: str) -> tuple[Transcript, list]:
     return tr, exs
 
 
-def _driver(exs) -> tuple[StepperBench, TranscriptPort]:
-    port = TranscriptPort(exs)
+def _driver(exs) -> tuple[StepperBench, object]:
+    port = transcript_port(exs)
     return StepperBench(port, timeout_s=0.5, setup=BENCH_SETUP, boot_timeout_s=2.0), port
 
 
@@ -192,7 +192,7 @@ def test_driver_session_instruments_check_names_the_firmware():
     assert ident["vendor"] == "GRBL" and ident["serial"] == "EC2-01" and "1.1h" in ident["firmware"]
     assert ident["settings"] == "$100=894.330 $110=210.000 $120=10.000"
     assert drv.status() == {"state": "Idle", "angle_deg": 0.0, "position_deg": 0.0, "rate_dps": 0.0}
-    assert port.done() and not drv.notes
+    assert port.played() and not drv.notes
 
 
 def test_driver_session_plain_grbl_is_reported_with_the_fix():
@@ -202,7 +202,7 @@ def test_driver_session_plain_grbl_is_reported_with_the_fix():
         drv.start()
     assert "$I=STEPPER_BENCH:" in err.value.fix and "$100=894.330" in err.value.fix
     assert "$110" not in err.value.fix  # a blank EEPROM's $110=500 allows 3.5 deg/s
-    assert port.done()
+    assert port.played()
     assert any("error:7" in n for n in drv.notes) is False  # the port was opened after the power-up
 
 
@@ -216,7 +216,7 @@ def test_driver_session_two_rates_then_stop():
     assert rates == [1.0, 0.2]
     monitors = [r[1] for r in results if r[0] == "monitor"]
     assert any(m["rate"] == pytest.approx(1.0) for m in monitors) and any(m["rate"] == pytest.approx(0.2) for m in monitors)
-    assert port.done()
+    assert port.played()
     assert drv.last_status.state == "Idle" and drv.last_status.feed == 0
 
 
@@ -227,7 +227,7 @@ def test_driver_session_ctrl_c_leaves_the_firmware_idle():
     results = _play_calls(drv, exs)
     told = results[-1]
     assert told[0] == "safe_state" and told[1].startswith("jog cancel (0x85): Idle, feed 0 at 2.800 deg")
-    assert port.done()
+    assert port.played()
 
 
 def test_driver_session_open_after_alarm_unlocks_and_says_so():
@@ -235,14 +235,14 @@ def test_driver_session_open_after_alarm_unlocks_and_says_so():
     drv, port = _driver(exs)
     drv.start()
     assert drv.status()["state"] == "Idle"
-    assert port.done()
+    assert port.played()
     assert len(drv.notes) == 1 and "unlocked with $X" in drv.notes[0] and "unlocked with $X" in drv.identify()["notes"]
 
 
 def test_a_driver_writing_other_bytes_fails_the_session():
     """The scripted peer is strict: the check session against a driver told another axis."""
     tr, exs = _session("driver-check-bench")
-    port = TranscriptPort(exs)
+    port = transcript_port(exs)
     drv = StepperBench(port, timeout_s=0.5, setup=BenchSetup("Y", 894.33, 3.5), boot_timeout_s=2.0)
     with pytest.raises(NotConfigured, match=r"\$101=250.000"):
         drv.start()
