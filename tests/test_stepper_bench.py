@@ -329,3 +329,13 @@ def test_worm_eccentricity_period_changes_with_speed(tmp_path):
         assert peaks[3.0][0] > 2.5 * peaks[1.0][0]
     finally:
         lab.close()
+
+
+def test_a_recorded_stepper_session_replays_to_the_same_results(tmp_path):
+    """tests/data/stepper_two_rates.h5 (tests/sessions/regenerate.py): the procedure at 1 and
+    0.2 deg/s, then stopped, as dry-run with GRBL's bytes; its replay sends the same bytes."""
+    from bench.replay import replay
+
+    result = replay(ROOT / "tests" / "data" / "stepper_two_rates.h5", runs_dir=tmp_path)
+    assert result.ok, result.report()
+    assert result.status == "completed"

@@ -56,6 +56,9 @@ SESSIONS = {
     "chamber_interlock_abort": (lambda: CHAMBER.format(limit="22 degC").replace("chamber_short", "chamber_interlock_abort"), []),
     "stepper_two_rates": (lambda: STEPPER, []),
 }
+ELSEWHERE = {"stepper_two_rates": ROOT / "tests" / "data"}
+"""Sessions kept out of this directory (whose files other tests count): replayed by their own tests
+(tests/test_stepper_bench.py)."""
 
 
 def record(procedure: Path, out_dir: Path, extra: list[str]) -> Path:
@@ -74,12 +77,13 @@ def main(argv: list[str] | None = None) -> int:
     names = (sys.argv[1:] if argv is None else argv) or list(SESSIONS)
     for name in names:
         text, extra = SESSIONS[name]
-        proc = HERE / f"{name}.yaml"
+        where = ELSEWHERE.get(name, HERE)
+        proc = where / f"{name}.yaml"
         proc.write_text(text(), encoding="utf-8")
         with tempfile.TemporaryDirectory() as d:
             f = record(proc, Path(d), extra)
-            shutil.copy(f, HERE / f"{name}.h5")
-        print(f"{HERE / (name + '.h5')}")
+            shutil.copy(f, where / f"{name}.h5")
+        print(f"{where / (name + '.h5')}")
     return 0
 
 
