@@ -160,14 +160,19 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "times) or unverified (docs/run-file.md)")
 
     c = sub.add_parser(
-        "calibrate-bench", help="fit the stepper bench speed calibration n = k(1/v - b) from rotation timings",
-        description="Fit the stepper bench speed calibration n = k·(1/v − b) (ESTCube-2 Eq. 3.1; n: delay between "
-                    "microsteps in µs, v: stage rate in rad/s) from stopwatch timings of full rotations, with "
-                    "type A, B and combined uncertainties (docs/stepper-bench.md).",
+        "calibrate-bench", help="stepper bench speed calibration from rotation timings: GRBL's steps per degree, or n = k(1/v - b)",
+        description="From stopwatch timings of full rotations: on stock GRBL (columns rate_dps, rotation_time_s) the "
+                    "corrected steps per degree and the $100 line that sets it; on the ESTCube-2 thesis firmware "
+                    "(columns n, rotation_time_s) n = k·(1/v − b) (Eq. 3.1). Type A, B and combined uncertainties "
+                    "as the thesis (docs/stepper-bench.md).",
         epilog=epilog("bench calibrate-bench tests/data/estcube2_table_3_1.csv",
+                      "bench calibrate-bench grbl_timings.csv --steps-per-deg 894.33",
                       "bench calibrate-bench timings.csv --resolution 0.1s --json",
-                      ok="the fit was printed", bad="bad CSV or --resolution (one located line per problem)"))
-    c.add_argument("timings", type=Path, help="CSV with columns n (microstep delay, µs) and rotation_time_s (s per revolution); repeated rows per n")
+                      ok="the fit was printed", bad="bad CSV, --resolution or --steps-per-deg (one located line per problem)"))
+    c.add_argument("timings", type=Path, help="CSV with columns rate_dps (commanded, deg/s) or n (thesis firmware), and "
+                                              "rotation_time_s (s per revolution); repeated rows per level")
+    c.add_argument("--steps-per-deg", default=None, help="GRBL: the $100 (steps per degree) the bench ran with while timed")
+    c.add_argument("--axis", default="X", choices=["X", "Y", "Z"], help="GRBL: the bench's axis (default X: $100)")
     c.add_argument("--resolution", default="0.01 s", help="stopwatch resolution, a duration: 10ms; a bare number is s (default '0.01 s', ESTCube-2 section 3.2.2)")
     c.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
 
@@ -561,11 +566,33 @@ def cmd_calibrate_bench(args: argparse.Namespace, console: Console) -> int:
     resolution = quantity(args.resolution, "s", "--resolution")
     if resolution < 0:
         raise InputError("the stopwatch resolution must be >= 0 s", None, "--resolution")
-    fit = fit_timings_file(args.timings, resolution)
+    steps = None
+    if args.steps_per_deg is not None:
+        steps = quantity(args.steps_per_deg, "1/deg", "--steps-per-deg")
+        if not 0 < steps < 1e6:
+            raise InputError("the steps per degree must be > 0", None, "--steps-per-deg")
+    fit = fit_timings_file(args.timings, resolution, steps, args.axis)
     if args.json:
         print(json.dumps(fit.as_json(), indent=2))
         return EXIT_OK
     from rich.table import Table
+
+    from bench.analysis.bench_speed_fit import GrblStepsFit
+
+    if isinstance(fit, GrblStepsFit):
+        t = Table(title=f"Stepper bench (GRBL) steps per degree from {args.timings} ({fit.rows} timings)")
+        for col in ("rate deg/s", "repeats", "mean rotation time s", "std s", "true rate deg/s"):
+            t.add_column(col, justify="right")
+        for lv in fit.levels:
+            t.add_row(f"{lv['rate_dps']:g}", str(lv["repeats"]), f"{lv['mean_time_s']:.3f}", f"{lv['std_time_s']:.3f}",
+                      f"{lv['true_rate_dps']:.5f}")
+        console.print(t)
+        console.print(f"steps per degree {fit.steps_per_deg:.3f} ± {fit.u_steps_per_deg:.3f} (extended, k = {fit.coverage_factor:.3f}: "
+                      f"{fit.u_steps_extended:.3f}); GRBL ran with {fit.set_steps_per_deg:g}: the table turned "
+                      f"{abs(100 * fit.rate_error):.3f} % {'faster' if fit.rate_error > 0 else 'slower'} than commanded")
+        console.print(f"u_A = {fit.u_a_s:.3f} s, u_B = {fit.u_b_stopwatch_s:.4f} s, u_C = {fit.u_c_s:.3f} s; largest residual {fit.largest_residual_s:.3f} s")
+        console.print(f"set it: send {fit.command} to GRBL, and steps_per_deg: {fit.steps_per_deg:.3f} in the lab config", markup=False)
+        return EXIT_OK
 
     t = Table(title=f"Stepper bench speed calibration from {args.timings} ({fit.rows} timings)")
     for col in ("n", "repeats", "mean rotation time s", "std s", "speed deg/s", "fit speed deg/s"):

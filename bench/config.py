@@ -21,7 +21,7 @@ from bench.sim.world import WorldParams
 from bench.units import to_units
 from bench.yamlsrc import Fields, Node, load_yaml
 from bench.sim.table_motion import Eccentricity
-from drivers.stepper_speed import BenchSpeedCalibration
+from drivers.stepper_bench import AXES as GRBL_AXES, BenchSetup
 
 if TYPE_CHECKING:  # pragma: no cover
     from bench.procedure.signals import StreamSignals
@@ -61,7 +61,8 @@ class SimConfig:
     sensor_spec: Any = None
     """The loaded model file when it is not ``imu_simple`` (:class:`bench.model.loader.SensorModelSpec`)."""
     model_path: str = ""
-    speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
+    grbl: "GrblSimConfig" = field(default_factory=lambda: GrblSimConfig())
+    """stepper_bench: the simulated GRBL's EEPROM, input pins and DTR reset."""
     open_channels: list[int] = field(default_factory=list)
     modbus_port: int = 0
     """TCP port of the simulated Modbus server on 127.0.0.1 (0: any free port)."""
@@ -80,6 +81,28 @@ class SimConfig:
 
 
 @dataclass
+class GrblSimConfig:
+    """The simulated bench's GRBL (bench/sim/stepper_bench.py): ``eeprom`` ``bench`` (set up as
+    the bench: steps per degree, max rate deg/s, acceleration deg/s², build info) or ``blank`` (a
+    freshly flashed board); ``pins`` input pins that read triggered (``PXYZRHS``: grbl-sim's);
+    ``dtr_reset_s`` the board resets on open and answers this long after (None: no reset)."""
+
+    axis: str = "X"
+    steps_per_deg: float = BenchSetup.steps_per_deg
+    max_rate_dps: float = BenchSetup.max_rate_dps
+    acceleration_dps2: float = 10.0
+    """GRBL's default $120 (defaults.h): the thesis gives no acceleration."""
+    eeprom: str = "bench"
+    build_info: str = ""
+    """Default: ``STEPPER_BENCH:`` and the sim's serial."""
+    pins: str = ""
+    dtr_reset_s: float | None = None
+    true_steps_per_deg: float | None = None
+    """The mechanics' steps per table degree when it differs from what GRBL is told (a bench to
+    calibrate); None: the same."""
+
+
+@dataclass
 class InstrumentConfig:
     name: str
     driver: str
@@ -88,7 +111,8 @@ class InstrumentConfig:
     timeout_s: float = 0.5
     sim: SimConfig | None = None
     location: Location | None = None
-    speed_calibration: BenchSpeedCalibration = field(default_factory=BenchSpeedCalibration)
+    bench_setup: BenchSetup = field(default_factory=BenchSetup)
+    """stepper_bench: its axis in GRBL, steps per degree, top rate and acceleration."""
     gauge_port: str = ""
     """tvac: serial URL of the vacuum gauge controller (TPG 261)."""
     gauge_baudrate: int = 9600
@@ -167,8 +191,11 @@ class LabConfig:
         return {n: i.limits for n, i in self.instruments.items() if i.limits}
 
 
-def load_config(path: str | Path) -> LabConfig:
-    """Read and validate a lab config; raises :class:`InputErrors` (an InputError) listing problems."""
+def load_config(path: str | Path, *, recorded: bool = False) -> LabConfig:
+    """Read and validate a lab config; raises :class:`InputErrors` (an InputError) listing problems.
+
+    ``recorded``: a config read back from a run file (replay): keys that earlier versions of bench
+    took and that mean nothing now are ignored instead of refused (:data:`RETIRED_KEYS`)."""
     src = load_yaml(path, "config")
     errors: list[InputError] = []
     top = Fields(src.root, "config", errors)
@@ -194,7 +221,7 @@ def load_config(path: str | Path) -> LabConfig:
                                          "(it is the first part of signals such as tvac.air_c, and a run file's group name)",
                                          node.location, "instruments"))
                 continue
-            inst = _instrument(iname, node, src.path.parent, errors, sources)
+            inst = _instrument(iname, node, src.path.parent, errors, sources, recorded)
             if inst is not None:
                 instruments[iname] = inst
     flush = 1.0
@@ -259,7 +286,19 @@ def _world(node: Node | None, errors: list[InputError]) -> WorldParams:
     return p
 
 
-def _instrument(name: str, node: Node, base: Path, errors: list[InputError], sources: dict[str, str]) -> InstrumentConfig | None:
+RETIRED_KEYS = {"speed_calibration": "the thesis firmware's n (Eq. 3.1); the bench runs stock GRBL 1.1 now: give steps_per_deg "
+                                     "(GRBL $100; 'bench calibrate-bench' fits it from rotation times)"}
+"""Keys of earlier configs that mean nothing now -> why (refused in a config, ignored in a recorded one)."""
+
+
+def _retired(f: Fields, errors: list[InputError], recorded: bool) -> None:
+    for key, why in RETIRED_KEYS.items():
+        if (n := f.node_at(key)) is not None and not recorded:
+            errors.append(InputError(f"{key} is {why}", n.location, key))
+
+
+def _instrument(name: str, node: Node, base: Path, errors: list[InputError], sources: dict[str, str],
+                recorded: bool = False) -> InstrumentConfig | None:
     """One instrument's settings; ``sources`` receives path -> text of the files it names."""
     before = len(errors)
     f = Fields(node, f"instrument {name!r}", errors)
@@ -277,8 +316,10 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError], sou
             errors.append(InputError("expected a timeout between 0 and 60 s", n.location, "timeout"))
     sim = None
     if (n := f.node_at("sim")) is not None:
-        sim = _sim(name, n, base, errors, sources)
-    cal = _speed_calibration(f.node_at("speed_calibration"), errors)
+        sim = _sim(name, n, base, errors, sources, recorded)
+    if driver == "stepper_bench":
+        _retired(f, errors, recorded)
+    setup = _bench_setup(f, errors) if driver == "stepper_bench" else BenchSetup()
     gauge_port = f.get("gauge_port", str, default="")
     if driver == "tvac" and not gauge_port:
         errors.append(InputError("a tvac instrument needs 'gauge_port' (serial port of its vacuum gauge controller, e.g. /dev/ttyUSB1)", node.location, "gauge_port"))
@@ -329,7 +370,7 @@ def _instrument(name: str, node: Node, base: Path, errors: list[InputError], sou
     f.check_unknown()
     if len(errors) > before:
         return None
-    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, cal, gauge_port, gauge_baud, safe_sp,
+    return InstrumentConfig(name, driver, port, baud, timeout, sim, node.location, setup, gauge_port, gauge_baud, safe_sp,
                             channels, tc_type, poll, limits, reconnect, compensation, serial=serial, firmware=firmware,
                             calibration_due=due, calibration_due_location=due_node.location if due_node is not None else None,
                             safe_state_timeout_s=safe_timeout, frames=frames)
@@ -438,27 +479,64 @@ def _instrument_limits(driver: str | None, node: Node | None, errors: list[Input
     return {} if node is None else parse_limits_block(node, driver or "", f"a {driver}", errors)
 
 
-def _speed_calibration(node: Node | None, errors: list[InputError]) -> BenchSpeedCalibration:
-    """``speed_calibration: {k: 19.5154, b: 0.4088 s/rad}`` (stepper bench, Eq. 3.1); defaults: the thesis fit."""
-    if node is None:
-        return BenchSpeedCalibration()
-    f = Fields(node, "speed_calibration", errors)
-    k = f.get("k", (int, float), default=BenchSpeedCalibration.k)
-    b = BenchSpeedCalibration.b_s_per_rad
-    if (n := f.node_at("b")) is not None:
-        b = _quantity(n, "s/rad", "b", errors, b)
-    if isinstance(k, (int, float)) and not (math.isfinite(k) and k >= 1e-6):
-        errors.append(InputError("k must be a finite number of at least 1e-6 (ESTCube-2 bench: 19.5154)", f.map["k"].location, "k"))
-        k = BenchSpeedCalibration.k  # keep what is derived from it (microsteps per revolution) computable
-    f.check_unknown()
-    return BenchSpeedCalibration(float(k), b)
+POSITIVE_RANGE = (1e-3, 1e6)
+"""Accepted values of the stepper bench's quantities (steps/deg, deg/s, deg/s², s): GRBL keeps
+them as floats with 3 decimals; beyond this they are typing errors."""
 
 
-def microsteps_per_revolution(cal: BenchSpeedCalibration) -> int:
-    """Microsteps per stage revolution implied by the speed calibration, if n is the delay between
-    microsteps in µs [U]: one microstep turns the stage k·1 µs rad (Eq. 3.1), so 2π/(k·1e-6)
-    per revolution (≈ 321 960 for k = 19.5154, i.e. 1600 microsteps per motor turn through a ~1:200 worm)."""
-    return int(round(2 * 3.141592653589793 / (cal.k * 1e-6)))
+def _positive(f: Fields, key: str, unit: str, default: float | None, errors: list[InputError], hint: str) -> float | None:
+    """``key`` as a finite quantity in ``unit`` within :data:`POSITIVE_RANGE`; ``default`` when absent."""
+    n = f.node_at(key)
+    if n is None:
+        return default
+    value = _quantity(n, unit, key, errors, default if default is not None else 1.0)
+    lo, hi = POSITIVE_RANGE
+    if not (math.isfinite(value) and lo <= value <= hi):
+        errors.append(InputError(f"{key} must be a finite number from {lo:g} to {hi:g} {unit} ({hint})", n.location, key))
+        return default
+    return value
+
+
+def _grbl_axis(f: Fields, errors: list[InputError]) -> str:
+    axis = f.get("axis", str, default="X")
+    if axis not in GRBL_AXES:
+        errors.append(InputError(f"expected a GRBL axis {', '.join(GRBL_AXES)}, got {axis!r}", f.map["axis"].location, "axis"))
+        return "X"
+    return axis
+
+
+def _bench_setup(f: Fields, errors: list[InputError]) -> BenchSetup:
+    """A stepper bench's ``axis`` (X), ``steps_per_deg`` (GRBL $100), ``max_rate`` (deg/s) and
+    ``acceleration`` (deg/s², checked against $120 when given)."""
+    d = BenchSetup()
+    return BenchSetup(_grbl_axis(f, errors),
+                      _positive(f, "steps_per_deg", "1/deg", d.steps_per_deg, errors, "GRBL $100: steps per table degree"),
+                      _positive(f, "max_rate", "deg/s", d.max_rate_dps, errors, "the fastest the bench is commanded"),
+                      _positive(f, "acceleration", "deg/s^2", None, errors, "GRBL $120"))
+
+
+def _grbl_sim(f: Fields, serial: str, errors: list[InputError]) -> GrblSimConfig:
+    """The simulated GRBL of a stepper bench (:class:`GrblSimConfig`)."""
+    d = GrblSimConfig()
+    g = GrblSimConfig(_grbl_axis(f, errors),
+                      _positive(f, "steps_per_deg", "1/deg", d.steps_per_deg, errors, "GRBL $100"),
+                      _positive(f, "max_rate", "deg/s", d.max_rate_dps, errors, "GRBL $110 / 60"),
+                      _positive(f, "acceleration", "deg/s^2", d.acceleration_dps2, errors, "GRBL $120"))
+    g.eeprom = f.get("eeprom", str, default="bench")
+    if g.eeprom not in ("bench", "blank"):
+        errors.append(InputError(f"expected eeprom bench or blank, got {g.eeprom!r}", f.map["eeprom"].location, "eeprom"))
+    g.build_info = f.get("build_info", str, default=f"STEPPER_BENCH:{serial}")
+    g.pins = f.get("pins", str, default="")
+    if g.pins is not None and not re.fullmatch(r"P?X?Y?Z?D?R?H?S?", g.pins):
+        errors.append(InputError(f"expected input pins in GRBL's report order (P X Y Z D R H S), got {g.pins!r}", f.map["pins"].location, "pins"))
+    g.dtr_reset_s = _positive(f, "dtr_reset", "s", None, errors, "an Uno answers about 2 s after its port opens")
+    g.true_steps_per_deg = _positive(f, "true_steps_per_deg", "1/deg", None, errors, "the mechanics, when GRBL's $100 is off")
+    return g
+
+
+def microsteps_per_revolution(steps_per_deg: float) -> int:
+    """Steps (microsteps) per stage revolution of a bench with ``steps_per_deg`` (GRBL $100)."""
+    return int(round(360.0 * steps_per_deg))
 
 
 def _periodic_error(node: Node, key: str, default_harmonic: int | None, errors: list[InputError]) -> Eccentricity | None:
@@ -479,7 +557,8 @@ def _periodic_error(node: Node, key: str, default_harmonic: int | None, errors: 
         return None
 
 
-def _sim(name: str, node: Node, base: Path, errors: list[InputError], sources: dict[str, str]) -> SimConfig | None:
+def _sim(name: str, node: Node, base: Path, errors: list[InputError], sources: dict[str, str],
+         recorded: bool = False) -> SimConfig | None:
     f = Fields(node, f"instrument {name!r} sim", errors)
     backend = f.get("backend", str, required=True)
     if backend is not None and backend not in SIM_BACKENDS:
@@ -496,14 +575,16 @@ def _sim(name: str, node: Node, base: Path, errors: list[InputError], sources: d
         errors.append(InputError("expected a list of channel numbers such as [104]", f.map["open_channels"].location, "open_channels"))
     else:
         sim.open_channels = opened
-    sim.speed_calibration = _speed_calibration(f.node_at("speed_calibration"), errors)
+    if backend == "stepper_bench":
+        sim.grbl = _grbl_sim(f, sim.serial, errors)
+        _retired(f, errors, recorded)
     sim.modbus_port = f.get("modbus_port", int, default=0)
     if sim.modbus_port is not None and not 0 <= sim.modbus_port <= 65535:
         errors.append(InputError("expected a TCP port 0..65535 (0: any free port)", f.map["modbus_port"].location, "modbus_port"))
     sim.scpi_port = f.get("scpi_port", int, default=5025)
     if sim.scpi_port is not None and not 0 <= sim.scpi_port <= 65535:
         errors.append(InputError("expected a TCP port 0..65535 (0: any free port)", f.map["scpi_port"].location, "scpi_port"))
-    for key, default_harmonic in (("eccentricity", None), ("microstep_ripple", microsteps_per_revolution(sim.speed_calibration))):
+    for key, default_harmonic in (("eccentricity", None), ("microstep_ripple", microsteps_per_revolution(sim.grbl.steps_per_deg))):
         if (n := f.node_at(key)) is not None:
             err = _periodic_error(n, key, default_harmonic, errors)
             if err is not None:

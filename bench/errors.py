@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, ProtocolError
+from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, NotConfigured, ProtocolError
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -26,7 +26,7 @@ KNOWN_ERRORS: tuple[type[Exception], ...] = (BenchError, InstrumentError)
 
 __all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_BAD_INPUT", "BenchError", "KNOWN_ERRORS", "Location", "InputError",
            "InputErrors", "DestinationError", "RecorderError", "InstrumentError", "InstrumentTimeout",
-           "ProtocolError", "DeviceFault"]
+           "ProtocolError", "DeviceFault", "NotConfigured"]
 
 
 @dataclass

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
 from bench.config import LabConfig, InstrumentConfig
-from bench.errors import KNOWN_ERRORS, DeviceFault, InstrumentTimeout, ProtocolError
+from bench.errors import KNOWN_ERRORS, DeviceFault, InstrumentTimeout, NotConfigured, ProtocolError
 
 HARDWARE_DOC = "docs/hardware.md"
 
@@ -262,6 +262,8 @@ def diagnose_failure(inst: InstrumentConfig, exc: BaseException) -> tuple[str, s
         return (f"connection refused by {host}",
                 f"check host and port of the Modbus TCP gateway in the config (modbus-tcp://HOST:PORT; the standard "
                 f"port is 502), that it is powered and on this network (ping {host.rsplit(':', 1)[0]})")
+    if isinstance(exc, NotConfigured):
+        return text, exc.fix
     if any(isinstance(e, InstrumentTimeout) for e in _chain(exc)):
         return f"no answer within {inst.timeout_s:g} s", hint_timeout(inst, eps[0] if eps else None)
     if isinstance(exc, ProtocolError):
@@ -330,7 +332,7 @@ def _acs_board(drv) -> str:
 
 def _stepper_bench(drv) -> str:
     s = drv.status()
-    return f"{s['state']}, angle {s['angle_deg']:.3f} deg"
+    return f"{s['state']}, angle {s['angle_deg']:.3f} deg, rate {s['rate_dps']:.3f} deg/s"
 
 
 def _thermocouple_reader(drv) -> str:

@@ -103,7 +103,7 @@ class Lab:
 def driver_kwargs(inst: InstrumentConfig) -> dict[str, Any]:
     """Driver-specific keyword arguments of ``open`` from the config (hardware URLs included)."""
     if inst.driver == "stepper_bench":
-        return {"calibration": inst.speed_calibration}
+        return {"setup": inst.bench_setup}
     if inst.driver == "tvac":
         return {"gauge_url": inst.gauge_port, "gauge_baudrate": inst.gauge_baudrate, "safe_set_point_c": inst.safe_set_point_c}
     if inst.driver == "thermocouple_reader":

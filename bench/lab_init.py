@@ -31,8 +31,8 @@ ARPHRD_CAN = "280"
 """``/sys/class/net/NAME/type`` of a CAN interface (linux/if_arp.h)."""
 
 LOOKS_LIKE: dict[int, str] = {
-    0x2341: "an Arduino: the stepper bench runs GRBL on one (driver: stepper_bench)",
-    0x2A03: "an Arduino: the stepper bench runs GRBL on one (driver: stepper_bench)",
+    0x2341: "an Arduino: the stepper bench runs stock GRBL 1.1 on one (driver: stepper_bench; set-up: docs/stepper-bench.md)",
+    0x2A03: "an Arduino: the stepper bench runs stock GRBL 1.1 on one (driver: stepper_bench; set-up: docs/stepper-bench.md)",
     0x16D0: "a CANable (SLCAN): the rate table's CAN bus (driver: rate_table, port: can://slcan/PATH?bitrate=500000&node=1)",
 }
 """USB vendor id -> what such a port usually is on this bench (a comment in the skeleton, never a choice)."""

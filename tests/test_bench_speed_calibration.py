@@ -100,3 +100,85 @@ def test_csv_reader_never_raises_anything_else(tmp_path_factory, text):
         return
     assert all(np.all(np.isfinite(v)) for v in values.values())
     assert len(lines) == len(values["n"])
+
+
+# ---- stock GRBL: steps per degree from timed rotations ---------------------------------------------
+@settings(max_examples=50, deadline=None)
+@given(st.floats(500.0, 1500.0), st.floats(0.97, 1.03), st.integers(0, 2**31))
+def test_grbl_fit_recovers_the_true_steps_per_degree(set_steps, error, seed):
+    """Timings of a table whose true steps per degree differ from GRBL's $100 by ``error``:
+    t = 360·true/($100·v) plus a stopwatch operator's 0.15 s scatter."""
+    from bench.analysis.bench_speed_fit import fit_grbl_steps
+
+    rng = np.random.default_rng(seed)
+    true = set_steps * error
+    v = np.repeat([0.5, 1.0, 2.0, 3.5], 5)
+    t = 360.0 * true / (set_steps * v) + rng.normal(0, 0.15, v.size)
+    fit = fit_grbl_steps(v, t, set_steps)
+    assert abs(fit.steps_per_deg - true) < 5 * fit.u_steps_per_deg
+    assert fit.u_steps_per_deg < 1e-3 * true  # 0.15 s on rotations of 100-700 s
+    assert fit.command == f"$100={fit.steps_per_deg:.3f}" and fit.rate_error == pytest.approx(set_steps / true - 1, abs=1e-3)
+
+
+def _cli(capsys, *args: str) -> tuple[int, str, str]:
+    """``bench ARGS`` in this process (a subprocess costs seconds): exit code, stdout, stderr."""
+    from bench.cli import main
+
+    code = main(list(args))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_grbl_fit_from_rotations_timed_on_the_simulated_bench(tmp_path, capsys):
+    """The simulated bench with mechanics of 890 steps/deg, GRBL told 894.33: rotations timed
+    from the stage's true angle (a mark passing a fixed point) at three rates, repeated; the fit
+    gives 890 back and the $100 line. (Our simulator and our fit agree; the linearity itself is
+    the firmware's: tests/golden/test_grbl_transcripts.py::test_grbl_steps_at_the_rate_of_the_feed.)"""
+    from bench.clock import VirtualClock
+    from bench.sim import registry
+    from bench.sim.stage import RotatingStage
+    from bench.sim.stepper_bench import StepperBenchSim, bench_eeprom
+    from drivers.stepper_bench import BenchSetup, StepperBench
+
+    clock = VirtualClock()
+    stage = RotatingStage()
+    sim = StepperBenchSim(clock, stage, bench_eeprom(894.33, 210.0, 10.0, build_info="STEPPER_BENCH:T"), true_steps_per_deg=890.0)
+    url = registry.register(f"cal{id(clock)}", sim)
+    rows = ["rate_dps,rotation_time_s"]
+    try:
+        bench = StepperBench.open(url, setup=BenchSetup("X", 894.33, 3.5))
+        for rate in (1.0, 2.0, 3.5):
+            bench.set_rate(rate)
+            bench.run()
+            clock.sleep(2.0)
+            marks: list[float] = []
+            while len(marks) < 4:  # a mark on the table passes 0 deg: the stopwatch starts, stops
+                t0 = clock.now()
+                clock.sleep(1.0)
+                bench.status()  # as the runner polls
+                a0, a1 = stage.angle_deg(np.array([t0, clock.now()]))
+                if np.floor(a0 / 360) != np.floor(a1 / 360):  # cruising: the angle is linear in time
+                    marks.append(t0 + (np.floor(a1 / 360) * 360 - a0) / (a1 - a0))
+            rows += [f"{rate},{round(b - a, 2)}" for a, b in zip(marks, marks[1:])]
+            bench.stop()
+    finally:
+        registry.unregister(f"cal{id(clock)}")
+    f = tmp_path / "grbl_timings.csv"
+    f.write_text("\n".join(rows) + "\n")
+    code, out, err = _cli(capsys, "calibrate-bench", str(f), "--steps-per-deg", "894.33", "--json")
+    assert code == 0, err
+    fit = json.loads(out)
+    assert fit["steps_per_deg"] == pytest.approx(890.0, abs=max(0.05, 3 * fit["u_steps_per_deg"]))
+    assert fit["command"] == f"$100={fit['steps_per_deg']:.3f}" and fit["rate_error"] == pytest.approx(894.33 / 890 - 1, abs=2e-4)
+    code, out, err = _cli(capsys, "calibrate-bench", str(f), "--steps-per-deg", "894.33")
+    assert "send $100=" in out and "steps_per_deg:" in out
+
+
+def test_grbl_timings_need_the_steps_per_degree_grbl_ran_with(tmp_path, capsys):
+    f = tmp_path / "g.csv"
+    f.write_text("rate_dps,rotation_time_s\n1,360.5\n2,180.2\n")
+    code, out, err = _cli(capsys, "calibrate-bench", str(f))
+    assert code == 2 and "--steps-per-deg" in err and len(err.strip().splitlines()) == 1
+    f.write_text("rate_dps,rotation_time_s\n1,360.5\n0,180.2\n")
+    code, out, err = _cli(capsys, "calibrate-bench", str(f), "--steps-per-deg", "894.33")
+    assert code == 2 and f"{f}:3:" in err and "rate_dps" in err

@@ -409,30 +409,33 @@ def test_thermocouple_reference_junction_garbage_is_a_protocol_error():
 
 
 _STATUS_PIECES = st.one_of(
-    st.builds(lambda s, n, p: f"<{s}|N:{n}|Pos:{p}>", st.sampled_from(["Idle", "Run", "Hold", "", "Ru n", "Idlé"]),
-              st.sampled_from(["300", "-12", "", "x", "9" * 5000, "1.5"]),
-              st.sampled_from(["123.456", "1.2.3", "...", ".", "-", "1e5", "9" * 5000, "0", "360.000"])),
+    st.builds(lambda s, p, f, extra: f"<{s}|MPos:{p},0.000,0.000|FS:{f},0{extra}>",
+              st.sampled_from(["Idle", "Jog", "Hold:0", "Hold:1", "", "Ru n", "Idlé", "Door:9x"]),
+              st.sampled_from(["123.456", "1.2.3", "...", ".", "-", "1e5", "9" * 5000, "0", "360.000", "-0.000"]),
+              st.sampled_from(["0", "60", "", "x", "9" * 5000, "1.5"]),
+              st.sampled_from(["", "|Pn:PXYZRHS", "|WCO:0.000,0.000,0.000", "|Ov:100,100,100", "|Zz:?", "|:", "|Bf:15"])),
     st.text(max_size=40),
 )
 
 
 @fuzz(100)
-@given(line=_STATUS_PIECES, ok=st.booleans())
-def test_stepper_status_answer_gives_a_status_or_an_instrument_error(line, ok):
+@given(line=_STATUS_PIECES)
+def test_stepper_status_answer_gives_a_status_or_an_instrument_error(line):
     def reply(data: bytes) -> bytes:
-        return line.encode("utf-8", "replace").replace(b"\n", b" ") + b"\n" + (b"ok\n" if ok else b"")
+        return line.encode("utf-8", "replace").replace(b"\n", b" ") + b"\r\n" if data == b"?" else b"ok\r\n"
     bench = StepperBench(ScriptedPort(reply), timeout_s=0.01)
     try:
         s = bench.status()
     except InstrumentError:
         return
-    assert s["state"] in ("Idle", "Run", "Hold") and isinstance(s["n"], int) and math.isfinite(s["angle_deg"])
+    assert s["state"] in ("Idle", "Jog", "Hold") and math.isfinite(s["angle_deg"]) and math.isfinite(s["rate_dps"])
 
 
 def test_stepper_status_with_a_malformed_angle_is_a_protocol_error():
-    """Found by fuzzing: ``Pos:1.2.3`` matched the status pattern and float() raised ValueError."""
-    bench = StepperBench(ScriptedPort(lambda _: b"<Idle|N:300|Pos:1.2.3>\nok\n"), timeout_s=0.01)
-    with pytest.raises(ProtocolError, match="no status report"):
+    """Found by fuzzing (the old bench protocol): ``Pos:1.2.3`` matched the status pattern and
+    float() raised ValueError; GRBL's ``MPos:`` is parsed field by field now."""
+    bench = StepperBench(ScriptedPort(lambda _: b"<Idle|MPos:1.2.3,0.000,0.000|FS:0,0>\r\n"), timeout_s=0.01)
+    with pytest.raises(ProtocolError, match="malformed position"):
         bench.status()
 
 
@@ -473,7 +476,7 @@ _KEYS = st.one_of(st.sampled_from([
     "schema", "name", "title", "instruments", "steps", "parameters", "limits", "interlocks", "mode", "world", "recorder",
     "driver", "port", "sim", "backend", "timeout", "baudrate", "channels", "wait", "record", "configure", "power", "repeat",
     "for_each", "call", "rate_steps", "duration", "instrument", "values", "var", "count", "procedure", "args", "latitude",
-    "speed_calibration", "k", "b", "sensor_model", "eccentricity", "signal", "max", "min", "stall", "max_gap",
+    "steps_per_deg", "max_rate", "acceleration", "sensor_model", "eccentricity", "signal", "max", "min", "stall", "max_gap",
     "requires", "unit", "station", "serial", "firmware", "calibration_due"]),
     st.text(max_size=8))
 _VALUES = st.recursive(_SCALARS, lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(_KEYS, inner, max_size=4)),
@@ -675,14 +678,14 @@ def test_nul_in_a_referenced_file_name_is_an_input_error(tmp_path):
 
 
 @pytest.mark.parametrize("k", ["1.0e-320", ".inf", "0", "-3"])
-def test_speed_calibration_k_must_be_finite_and_usable(tmp_path, k):
-    """k = 1e-320 raised ZeroDivisionError; k = .inf was accepted (and n = round(inf) later raised)."""
-    text = (ROOT / "configs" / "sim.yaml").read_text().replace("      speed_calibration: {k: 19.5154, b: 0.4088 s/rad}",
-                                                                f"      speed_calibration: {{k: {k}, b: 0.4088 s/rad}}")
+def test_steps_per_degree_must_be_finite_and_usable(tmp_path, k):
+    """speed_calibration k = 1e-320 raised ZeroDivisionError and .inf was accepted; its successor
+    (GRBL's steps per degree) must be a usable number too."""
+    text = (ROOT / "configs" / "sim.yaml").read_text().replace("      steps_per_deg: 894.33\n", f"      steps_per_deg: {k}\n")
     shutil.copytree(ROOT / "configs", tmp_path / "configs")
     path = tmp_path / "configs" / "k.yaml"
     path.write_text(text)
-    with pytest.raises(InputErrors, match=rf"^{re.escape(str(path))}:\d+:\d+: k: k must be a finite number"):
+    with pytest.raises(InputErrors, match=rf"^{re.escape(str(path))}:\d+:\d+: steps_per_deg: (steps_per_deg must be a finite number|inf is not a finite quantity)"):
         load_config(path)
 
 

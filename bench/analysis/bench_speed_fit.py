@@ -14,6 +14,13 @@ Uncertainties follow section 3.2.2:
   freedom (2.869 for 5 repeats, Eq. 3.6/3.9).
 
 ``u_k`` and ``u_b`` are the standard errors of the least-squares fit (k = 1/slope, propagated).
+
+On stock GRBL (docs/stepper-bench.md) the rate is linear in the feed with no offset: GRBL sends
+``feed·$100`` steps per minute, so a table of S true steps per degree turns at v_cmd·$100/S and
+one rotation takes t = 360·S/($100·v_cmd). :func:`fit_grbl_steps` fits the ratio c = S/$100 by
+least squares through the origin of t on 360/v_cmd and gives the corrected ``$100`` = c·$100 with
+the thesis's uncertainty terms (u_A, u_B, u_C per timing; Student t for 95.45 %). Its standard
+uncertainty is the larger of the timing one (u_C/√Σx²) and the scatter of the fit's residuals.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from bench.csvsrc import read_numeric_csv
+from bench.csvsrc import read_csv_table, read_numeric_csv
 from bench.errors import InputError, Location
 
 COVERAGE = 0.9545  # "confidence interval of 95.45%" (ESTCube-2 Eq. 3.6)
@@ -50,6 +57,21 @@ class BenchSpeedFit:
 
     def as_json(self) -> dict:
         return asdict(self)
+
+
+def _levels(key: str, x: np.ndarray, t: np.ndarray, speed_key: str) -> tuple[list[dict], float, list[int]]:
+    """Per level of ``x`` (``key``): repeats, mean and (population) standard deviation of the
+    rotation times ``t`` (s) and the speed they give (deg/s, ``speed_key``); u_A, the mean of
+    the standard deviations (NaN without repeats, Eq. 3.2); the repeats per level."""
+    out, stds, repeats = [], [], []
+    for lv in np.unique(x):
+        tt = t[x == lv]
+        stds.append(float(np.std(tt)) if tt.size > 1 else float("nan"))
+        repeats.append(int(tt.size))
+        out.append({key: float(lv), "repeats": int(tt.size), "mean_time_s": float(tt.mean()),
+                    "std_time_s": stds[-1], speed_key: 360.0 / float(tt.mean())})
+    valid = [sd for sd in stds if not math.isnan(sd)]
+    return out, (float(np.mean(valid)) if valid else float("nan")), repeats
 
 
 def fit_bench_speed(n: np.ndarray, rotation_time_s: np.ndarray, resolution_s: float = 0.01) -> BenchSpeedFit:
@@ -79,17 +101,8 @@ def fit_bench_speed(n: np.ndarray, rotation_time_s: np.ndarray, resolution_s: fl
     else:
         u_slope = u_intercept = float("nan")
     k = 1.0 / slope
-    per_level = []
-    stds = []
-    repeats = []
-    for lv in levels:
-        tt = t[n == lv]
-        stds.append(float(np.std(tt)) if tt.size > 1 else float("nan"))
-        repeats.append(tt.size)
-        per_level.append({"n": float(lv), "repeats": int(tt.size), "mean_time_s": float(tt.mean()),
-                          "std_time_s": stds[-1], "speed_dps": 360.0 / float(tt.mean())})
-    valid = [s for s in stds if not math.isnan(s)]
-    u_a = float(np.mean(valid)) if valid else float("nan")
+    per_level, u_a, repeats = _levels("n", n, t, "speed_dps")
+    valid = not math.isnan(u_a)
     u_b_sw = resolution_s / math.sqrt(3)
     u_c = math.sqrt(u_a**2 + u_b_sw**2) if valid else u_b_sw
     t_min = float(min(p["mean_time_s"] for p in per_level))
@@ -104,8 +117,86 @@ def fit_bench_speed(n: np.ndarray, rotation_time_s: np.ndarray, resolution_s: fl
     )
 
 
-def fit_timings_file(path: str | Path, resolution_s: float = 0.01) -> BenchSpeedFit:
-    """Read a timings CSV (columns ``n``, ``rotation_time_s``; repeated rows per n) and fit it."""
+@dataclass
+class GrblStepsFit:
+    """Steps per table degree from timed rotations on GRBL (see the module docstring)."""
+
+    axis: str
+    set_steps_per_deg: float
+    """The ``$100`` (``$101``, ``$102``) the bench ran with while timed."""
+    steps_per_deg: float
+    u_steps_per_deg: float
+    ratio: float
+    """c = true / set steps per degree: the table turns at the commanded rate / c."""
+    u_ratio: float
+    u_a_s: float
+    u_b_stopwatch_s: float
+    u_c_s: float
+    coverage_factor: float
+    u_steps_extended: float
+    rate_error: float
+    """How much faster (+) or slower (-) than commanded the table turned: 1/c - 1."""
+    largest_residual_s: float
+    rows: int
+    levels: list[dict]
+    command: str
+    """The line that sets it: ``$100=894.330``."""
+
+    def as_json(self) -> dict:
+        return asdict(self)
+
+
+def fit_grbl_steps(rate_dps: np.ndarray, rotation_time_s: np.ndarray, set_steps_per_deg: float,
+                   resolution_s: float = 0.01, axis: str = "X") -> GrblStepsFit:
+    """Corrected steps per degree from rotation times ``rotation_time_s`` (s) at commanded rates
+    ``rate_dps`` (deg/s; the sign is ignored) on a GRBL set to ``set_steps_per_deg``. ValueError
+    for rates or times that are not positive, or a fit without a degree of freedom."""
+    v = np.abs(np.asarray(rate_dps, dtype=float))
+    t = np.asarray(rotation_time_s, dtype=float)
+    if np.any(t <= 0) or np.any(v <= 0):
+        raise ValueError("rates and rotation times must be > 0")
+    if not (math.isfinite(set_steps_per_deg) and set_steps_per_deg > 0):
+        raise ValueError(f"the steps per degree GRBL ran with must be > 0, got {set_steps_per_deg!r}")
+    if t.size < 2:
+        raise ValueError("need two or more timings")
+    x = 360.0 / v  # the rotation time if the table turned as commanded (s)
+    sxx = float(x @ x)
+    c = float(x @ t) / sxx
+    resid = t - c * x
+    levels, u_a, repeats = _levels("rate_dps", v, t, "true_rate_dps")
+    u_a = 0.0 if math.isnan(u_a) else u_a
+    u_b_sw = resolution_s / math.sqrt(3)
+    u_c = math.sqrt(u_a**2 + u_b_sw**2)
+    u_timing = u_c / math.sqrt(sxx)
+    u_scatter = math.sqrt(float(resid @ resid) / (t.size - 1) / sxx)
+    u_ratio = max(u_timing, u_scatter)
+    dof = min(repeats) - 1 if min(repeats) > 1 else t.size - 1
+    kf = float(stats.t.ppf(0.5 + COVERAGE / 2, dof))
+    steps = c * set_steps_per_deg
+    n = {"X": 100, "Y": 101, "Z": 102}[axis]
+    return GrblStepsFit(axis, float(set_steps_per_deg), steps, u_ratio * set_steps_per_deg, c, u_ratio, u_a, u_b_sw, u_c, kf,
+                        kf * u_ratio * set_steps_per_deg, 1.0 / c - 1.0, float(np.max(np.abs(resid))), int(t.size), levels,
+                        f"${n}={steps:.3f}")
+
+
+def fit_timings_file(path: str | Path, resolution_s: float = 0.01, steps_per_deg: float | None = None,
+                     axis: str = "X") -> BenchSpeedFit | GrblStepsFit:
+    """Read a timings CSV and fit it: columns ``n``, ``rotation_time_s`` (the thesis firmware:
+    :func:`fit_bench_speed`) or ``rate_dps``, ``rotation_time_s`` (stock GRBL, needs
+    ``steps_per_deg``, the ``$100`` it ran with: :func:`fit_grbl_steps`); repeated rows per level."""
+    if "rate_dps" in read_csv_table(path).header:
+        if steps_per_deg is None:
+            raise InputError("rate_dps timings are GRBL's: give the steps per degree GRBL ran with (--steps-per-deg, its $100)",
+                             Location(path), "--steps-per-deg")
+        values, lines = read_numeric_csv(path, ["rate_dps", "rotation_time_s"])
+        for col in ("rate_dps", "rotation_time_s"):
+            bad = np.flatnonzero(np.abs(values[col]) <= 0) if col == "rate_dps" else np.flatnonzero(values[col] <= 0)
+            if bad.size:
+                raise InputError(f"{col} must be {'non-zero' if col == 'rate_dps' else '> 0 s'}", Location(path, int(lines[bad[0]])), col)
+        try:
+            return fit_grbl_steps(values["rate_dps"], values["rotation_time_s"], steps_per_deg, resolution_s, axis)
+        except ValueError as exc:
+            raise InputError(str(exc), Location(path)) from None
     values, lines = read_numeric_csv(path, ["n", "rotation_time_s"])
     bad = np.flatnonzero(values["rotation_time_s"] <= 0)
     if bad.size:

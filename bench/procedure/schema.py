@@ -152,7 +152,7 @@ STEP_TYPES: dict[str, StepSpec] = {
     "bench_rate": StepSpec(
         {"instrument": BENCH, "rate": FieldSpec("quantity", "deg/s", doc="bench rate (signed; 0 stops)"),
          "settle": FieldSpec("quantity", "s", required=False, default=0.0, minimum=0.0, doc="wait this long afterwards")},
-        "Turn the stepper bench at a rate (converted to its speed parameter n with the bench calibration).",
+        "Turn the stepper bench at a rate (GRBL jogging at that feed; 0 stops it with a jog cancel).",
     ),
     "mount": StepSpec(
         {

@@ -22,7 +22,7 @@ SIGNALS: dict[str, dict[str, str]] = {
     "tvac": {"air_temp": "degC", "mount_temp": "degC", "pressure": "Torr"},
     "thermocouple_reader": {"ch*": "degC"},
     "rate_table": {"angle": "deg", "rate": "deg/s", "tilt": "deg", "statusword": "", "tilt_statusword": ""},
-    "stepper_bench": {"angle": "deg", "n": ""},
+    "stepper_bench": {"angle": "deg", "rate": "deg/s"},
 }
 """Driver -> column -> units. ``ch*``: any thermocouple channel ``ch101``..``ch399``."""
 

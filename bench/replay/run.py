@@ -146,7 +146,7 @@ def _load(ws: Workspace, what: str, load, config_hint: str = CONFIG_NOT_FOUND_HI
 
 def _replay(rec, ws: Workspace, procedure_path: Path | None, runs_dir: Path, check_board: bool) -> ReplayResult:
     src = rec.summary
-    config = _load(ws, "config", lambda: load_config(config_file(rec, ws)),
+    config = _load(ws, "config", lambda: load_config(config_file(rec, ws), recorded=True),
                    CONFIG_NOT_FOUND_HINT if rec.config_sources is not None else OLD_CONFIG_NOT_FOUND_HINT)
     for name in config.instruments:
         check_plain_name(name, rec.path, f"{layout.absolute(layout.CONFIG_TEXT)}: instruments:")

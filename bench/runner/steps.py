@@ -266,7 +266,7 @@ def bench_rate(r: "Runner", step: Step) -> tuple[str, str]:
     else:
         actual = drv.set_rate(p["rate"])
         drv.run()
-        msg = f"{actual:+.4f} deg/s (n = {drv.n_for_rate(p['rate'])})"
+        msg = f"{actual:+.4f} deg/s"
     if p.get("settle"):
         r.wait_until(p["settle"])
     return "done", msg

@@ -25,7 +25,7 @@ from bench.model.imu_simple import SimpleImuModel
 from bench.sim.acs_board import AcsBoardIdentity, AcsBoardSim
 from bench.sim.registry import SerialDevice
 from bench.sim.serial_faults import FaultySerialLink
-from bench.sim.stepper_bench import StepperBenchSim
+from bench.sim.stepper_bench import StepperBenchSim, bench_eeprom
 from bench.sim.thermocouple_reader import ThermocoupleReaderSim
 from bench.sim.world import World
 
@@ -127,7 +127,12 @@ def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_por
 def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
                    inprocess: bool) -> SimInstrument:
     world.stage.periodic_errors = tuple(e for e in inst.sim.periodic_errors if e.amplitude)
-    return _serial_only(name, StepperBenchSim(clock, world.stage, inst.sim.speed_calibration, inst.sim.serial, inst.baudrate))
+    g = inst.sim.grbl
+    eeprom = None if g.eeprom == "blank" else bench_eeprom(g.steps_per_deg, g.max_rate_dps * 60.0, g.acceleration_dps2,
+                                                           g.axis, g.build_info)
+    return _serial_only(name, StepperBenchSim(clock, world.stage, eeprom, axis=g.axis, pins=g.pins,
+                                              dtr_reset_s=g.dtr_reset_s, baudrate=inst.baudrate,
+                                              true_steps_per_deg=g.true_steps_per_deg))
 
 
 def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,

@@ -1,4 +1,4 @@
-"""Base of simulated instruments with a line-oriented ASCII protocol (GRBL, SCPI, ...).
+"""Base of simulated instruments with a line-oriented ASCII protocol (SCPI, the TPG gauge, ...).
 
 Implements the :class:`bench.sim.registry.SerialDevice` side once: an output buffer that is
 available at once (replies have no modelled latency), line assembly on CR/LF with a bounded line
@@ -22,8 +22,6 @@ class LineDeviceSim(ReplyBuffer):
     realtime_bytes: frozenset[int] = frozenset()
     max_line = 256
     """Longest line kept (characters); longer lines go to :meth:`on_overflow`."""
-    answer_empty_lines = False
-    """Pass empty lines to :meth:`on_line` (GRBL answers ``ok`` to an empty line)."""
 
     def __init__(self, clock, baudrate: int):
         self.clock = clock
@@ -77,7 +75,7 @@ class LineDeviceSim(ReplyBuffer):
                 if b in self.realtime_bytes:
                     self.on_realtime(b)
                 elif b in (0x0A, 0x0D):
-                    if self._in or self._overflow or self.answer_empty_lines:
+                    if self._in or self._overflow:
                         line = self._in.decode("ascii", "replace").strip()
                         overflow, self._overflow = self._overflow, False
                         self._in.clear()

@@ -133,6 +133,12 @@ class FaultySerialLink:
             return self.clock.now()
         return self.device.next_output_time()
 
+    def on_open(self) -> None:
+        """The port was opened: the device may reset (an Arduino's DTR)."""
+        on_open = getattr(self.device, "on_open", None)
+        if on_open is not None:
+            on_open()
+
     def set_baudrate(self, baudrate: int) -> None:
         self.device.set_baudrate(baudrate)
 

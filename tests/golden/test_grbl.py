@@ -1,13 +1,11 @@
-"""Golden exchanges of the GRBL 1.1-style stepper bench (docs/golden/grbl.md).
+"""Golden exchanges of GRBL 1.1h as the firmware ships (docs/golden/grbl.md).
 
-The byte strings are transcribed from gnea/grbl ``doc/markdown/interface.md`` (response, push and
-status messages, error and alarm tables), ``doc/markdown/commands.md`` (realtime commands, ``$X``)
-and, for the exact line ends of the welcome message, ``grbl/report.c``. Requests such as ``$N=300``
-and ``$RUN`` are the bench firmware's own commands (docs/stepper-bench.md); their answers take
-GRBL's forms. Nothing is produced by the project's encoders; no driver or simulator constant is
-imported.
+The literals below are the table's bytes (checked: :func:`test_rows_are_the_rows_of_the_document`)
+and each exchange is one the real firmware had (:func:`test_rows_are_exchanges_of_the_firmware`,
+in docs/golden/grbl-transcripts/). Nothing is produced by the project's encoders and no driver or
+simulator constant is imported for the expected bytes.
 
-(a) driver: ``drivers.stepper_bench.StepperBench`` against a scripted port;
+(a) driver: ``drivers.stepper_bench`` / ``drivers.grbl`` against a scripted port;
 (b) simulator: ``bench.sim.stepper_bench.StepperBenchSim`` reached raw through ``sim://``.
 """
 
@@ -15,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import re
+from pathlib import Path
 
 import pytest
 import serial
@@ -23,103 +22,158 @@ from bench.clock import VirtualClock
 from bench.config import load_config
 from bench.sim import registry
 from bench.sim.factory import build_devices
-from drivers.errors import DeviceFault, InstrumentTimeout, ProtocolError
+from drivers import grbl
+from drivers.errors import DeviceFault, ProtocolError
 from drivers.stepper_bench import StepperBench
-from tests.conftest import SIM_CONFIG
+from tests.conftest import ROOT
 from tests.golden.expected_exchange import expected_exchange
+from tests.golden.grbl_transcript import all_transcripts
 
-TIMEOUT_S = 0.3  # driver and raw-port read timeout (s; virtual time for the simulator)
+DOC = Path(__file__).resolve().parents[2] / "docs" / "golden" / "grbl.md"
+TIMEOUT_S = 0.3
+MSG_UNLOCK = b"[MSG:'$H'|'$X' to unlock]\r\n"
+WELCOME = b"\r\nGrbl 1.1h ['$' for help]\r\n"
+LONG = b"$J=G91G21X" + b"1" * 90 + b"F60\n"
 
-# ---- rows (docs/golden/grbl.md) ----------------------------------------------------------------
-OK = b"ok\r\n"  # G1
-VERSION = (b"$I\n", b"[VER:v1.1d.20161014:Some string]\r\n[OPT:VL]\r\nok\r\n")  # G2
-STATUS_DOC = b"<Idle|MPos:0.000,0.000,0.000|FS:0.0,0>\r\n"  # G3, interface.md "Status Reporting"
-STATUS_RUN = b"<Run|MPos:12.500,0.000,0.000|F:180|N:300>\r\n"  # G4: GRBL form + the firmware's N:
-STATUS_HOLD = b"<Hold:0|MPos:12.500,0.000,0.000|F:0|N:300>\r\n"  # G5
-WELCOME = b"\r\nGrbl 1.1f ['$' for help]\r\n"  # G8
-ALARM_3 = b"ALARM:3\r\n"  # G9: reset while in motion
-ALARM_LOCK_MSG = b"[MSG:'$H'|'$X' to unlock]\r\n"  # G9
-UNLOCKED = b"[MSG:Caution: Unlocked]\r\nok\r\n"  # G10
-# interface.md "Real-time Status Reports": <State[:sub]|MPos or WPos:x,y,z|optional fields>, CR LF
-STATUS_RE = re.compile(rb"^<(Idle|Run|Hold:[01]|Jog|Alarm|Door:[0-3]|Check|Home|Sleep)"
-                       rb"\|[MW]Pos:(-?[0-9]+\.[0-9]{3}),-?[0-9]+\.[0-9]{3},-?[0-9]+\.[0-9]{3}"
-                       rb"((?:\|[A-Za-z]+:[^|<>\r\n]*)*)>\r\n$")
-VERSION_RE = re.compile(rb"^\[VER:[^:\]\r\n]*:SIM-0002\]\r\n\[OPT:[^\]\r\n]*\]\r\nok\r\n$")
-
-
-# ---- (a) driver ------------------------------------------------------------------------------
-def bench_on(port) -> StepperBench:
-    return StepperBench(port, timeout_s=TIMEOUT_S)
-
-
-def test_driver_reads_the_version_line_and_skips_opt():
-    with expected_exchange([VERSION], baudrate=115200) as port:
-        ident = bench_on(port).identify()
-    assert ident["firmware"] == "v1.1d.20161014" and ident["serial"] == "Some string"
-
-
-def test_driver_status_in_grbl_form():
-    """G4/G5: state (sub-state dropped), the X machine position as the angle (deg), n from N:."""
-    with expected_exchange([(b"$S\n", STATUS_RUN + OK), (b"$S\n", STATUS_HOLD + OK)], baudrate=115200) as port:
-        bench = bench_on(port)
-        assert bench.status() == {"state": "Run", "n": 300, "angle_deg": 12.5}
-        assert bench.status() == {"state": "Hold", "n": 300, "angle_deg": 12.5}
+ROWS: dict[str, tuple[bytes, bytes]] = {
+    "G1": (b"\n", b"ok\r\n"),
+    "G2": (b"$I\n", b"[VER:1.1h.20190830:STEPPER_BENCH:EC2-01]\r\n[OPT:V,15,128]\r\nok\r\n"),
+    "G3": (b"$I\n", b"[VER:1.1h.20190830:]\r\n[OPT:V,15,128]\r\nok\r\n"),
+    "G4": (b"?", b"<Idle|MPos:0.000,0.000,0.000|FS:0,0|Pn:PXYZRHS|WCO:0.000,0.000,0.000>\r\n"),
+    "G5": (b"$J=G91G21X10.000F60.000\n", b"ok\r\n"),
+    "G6": (b"?", b"<Jog|MPos:0.182,0.000,0.000|FS:60,0|Pn:PXYZRHS>\r\n"),
+    "G7": (b"\x85", b""),
+    "G8": (b"!", b""),
+    "G9": (b"~", b""),
+    "G10": (b"\x18", WELCOME),
+    "G11": (b"\x18", b"ALARM:3\r\n" + WELCOME + MSG_UNLOCK),
+    "G12": (b"$X\n", b"[MSG:Caution: Unlocked]\r\nok\r\n"),
+    "G13": (b"$WARP\n", b"error:2\r\n"),
+    "G14": (b"$RUN\n", b"error:3\r\n"),
+    "G15": (b"$J=G91G21X1.000\n", b"error:22\r\n"),
+    "G16": (b"$J=G91G1X1.000F60.000\n", b"error:16\r\n"),
+    "G17": (LONG, b"error:11\r\n"),
+    "G18": (b"$I\n", b"error:8\r\n"),
+    "G19": (b"G1X1F60\n", b"error:9\r\n"),
+    "G20": (b"$J=G91G21X1.000F60.000\n", b"error:8\r\n"),
+    "G21": (b"", b"error:7\r\n$0=10\r\n"),
+    "G22": (b"\r\n", b"ok\r\nok\r\n"),
+}
 
 
-def test_driver_refuses_a_plain_grbl_status_without_n():
-    """G3: the document's own report has no N: field: a plain GRBL is not this bench."""
-    with expected_exchange([(b"$S\n", STATUS_DOC + OK)], baudrate=115200) as port:
-        with pytest.raises(ProtocolError, match="no status report"):
-            bench_on(port).status()
+def _doc_bytes(text: str) -> bytes:
+    """A table cell's literal: ``<CR>``/``<LF>`` and a lone ``0x18`` as bytes, ``\\|`` as ``|``."""
+    if re.fullmatch(r"0x[0-9A-F]{2}", text):
+        return bytes([int(text, 16)])
+    return text.replace("\\|", "|").replace("<CR>", "\r").replace("<LF>", "\n").encode("ascii")
 
 
-def test_driver_set_rate_and_run_are_acknowledged():
-    """G1: every line is answered ok."""
-    with expected_exchange([(b"$N=300\n", OK), (b"$RUN\n", OK)], baudrate=115200) as port:
-        bench = bench_on(port)
-        bench.set_rate(bench.calibration.speed_for_n(300))
-        bench.run()
+def _doc_rows() -> dict[str, list[str]]:
+    rows = {}
+    for line in DOC.read_text(encoding="utf-8").splitlines():
+        m = re.match(r"^\| (G\d+) \| [^|]+ \| (.*)$", line)
+        if m:
+            cells = re.split(r"(?<!\\)\|", m.group(2))
+            rows[m.group(1)] = [re.findall(r"`([^`]*)`", c) for c in cells[:2]]
+    return rows
 
 
-def test_driver_error_code_is_protocol_error_with_its_meaning():
-    """G6: error:22 "Feed rate has not yet been set or is undefined" (run before a speed)."""
-    with expected_exchange([(b"$RUN\n", b"error:22\r\n")], baudrate=115200) as port:
-        with pytest.raises(ProtocolError, match=r"error:22 \(feed rate"):
-            bench_on(port).run()
+def _doc_table(title: str) -> dict[int, tuple[str, str]]:
+    text = DOC.read_text(encoding="utf-8").split(f"## {title}")[1].split("\n## ")[0]
+    return {int(c): (m, d) for c, m, d in re.findall(r"^\| (\d+) \| (.+?) \| (.+?) \|$", text, re.M)}
 
 
-def test_driver_pushed_alarm_is_device_fault_and_stays_in_step():
-    """G9 then G7: ALARM:3, the welcome message and the unlock hint arrive before the answer
-    (error:9, locked out); the driver raises DeviceFault and the next command reads its own ok."""
-    pushed = ALARM_3 + WELCOME + ALARM_LOCK_MSG
-    with expected_exchange([(b"$RUN\n", pushed + b"error:9\r\n"), (b"$STOP\n", OK)], baudrate=115200) as port:
-        bench = bench_on(port)
-        with pytest.raises(DeviceFault, match=r"ALARM:3 \(reset while in motion"):
-            bench.run()
-        bench.stop()
+def test_rows_are_the_rows_of_the_document():
+    doc = _doc_rows()
+    assert set(doc) == set(ROWS)
+    for key, (request, answer) in ROWS.items():
+        req_cells, ans_cells = doc[key]
+        req = b"".join(_doc_bytes(t) for t in req_cells)
+        assert req == request, key
+        ans = b"".join(_doc_bytes(t) for t in ans_cells)
+        assert answer.startswith(ans) or ans.startswith(answer) if key == "G21" else ans == answer, key
 
 
-def test_driver_safe_state_holds_then_stops():
-    """G11: realtime ``!`` (no answer), then a confirmed stop."""
-    with expected_exchange([(b"!", None), (b"$STOP\n", OK)], baudrate=115200) as port:
-        bench_on(port).safe_state()
+def test_error_and_alarm_tables_are_grbls():
+    """The driver's tables are the document's (GRBL's doc/csv files, transcribed)."""
+    assert _doc_table("GRBL 1.1 error codes") == grbl.ERRORS
+    assert _doc_table("GRBL 1.1 alarm codes") == grbl.ALARMS
 
 
-def test_driver_silent_bench_is_timeout():
-    with expected_exchange([(b"$STOP\n", None)], baudrate=115200) as port:
-        with pytest.raises(InstrumentTimeout):
-            bench_on(port).stop()
+def _firmware_units():
+    """(host unit, firmware bytes after it) of every transcript; and the power-up outputs."""
+    from tests.golden.grbl_replay import exchanges
+
+    units, boots = [], []
+    for tr in all_transcripts():
+        boot, exs = exchanges(tr)
+        boots.append(boot)
+        units += [(ex.host, ex.firmware) for ex in exs]
+    return units, boots
 
 
-# ---- (b) simulator -------------------------------------------------------------------------------
+def test_rows_are_exchanges_of_the_firmware():
+    """Each row happened: its request was followed by its answer in a transcript of the firmware."""
+    units, boots = _firmware_units()
+    for key, (request, answer) in ROWS.items():
+        if key == "G21":
+            assert any(b.startswith(answer) and b.endswith(WELCOME) for b in boots), key
+        elif key == "G11":
+            assert any(h == request and f.replace(b"\r\n", b"\n") == answer.replace(b"\r\n", b"\n") for h, f in units), key
+        else:
+            assert any(h == request and f == answer for h, f in units), key
+
+
+# ---- (a) the driver ----------------------------------------------------------------------------------
+def test_driver_reads_the_bench_and_a_plain_grbl():
+    with expected_exchange([ROWS["G2"]], baudrate=115200) as port:
+        version, build, options = grbl.parse_build_info(grbl.GrblChannel(port, TIMEOUT_S, "b").transact("$I"))
+    assert (version, build, options) == ("1.1h.20190830", "STEPPER_BENCH:EC2-01", "V,15,128")
+    with expected_exchange([ROWS["G3"]], baudrate=115200) as port:
+        assert grbl.parse_build_info(grbl.GrblChannel(port, TIMEOUT_S, "b").transact("$I"))[1] == ""
+
+
+def test_driver_status_from_the_realtime_report():
+    with expected_exchange([ROWS["G4"], ROWS["G6"]], baudrate=115200) as port:
+        bench = StepperBench(port, timeout_s=TIMEOUT_S)
+        assert bench.status() == {"state": "Idle", "angle_deg": 0.0, "position_deg": 0.0, "rate_dps": 0.0}
+        bench._turning, bench._rate_dps, bench._queued_to = False, 1.0, 30.0
+        s = bench.status()
+    assert s["state"] == "Jog" and s["angle_deg"] == pytest.approx(0.182) and s["rate_dps"] == 1.0
+
+
+@pytest.mark.parametrize("row, meaning", [("G13", "Bad number format"), ("G14", "Invalid statement"),
+                                          ("G15", "Undefined feed rate"), ("G16", "Invalid jog command"),
+                                          ("G17", "Line overflow"), ("G18", "Not idle"), ("G19", "G-code lock")])
+def test_driver_errors_carry_grbls_meaning(row, meaning):
+    request, answer = ROWS[row]
+    with expected_exchange([(request, answer)], baudrate=115200) as port:
+        with pytest.raises(ProtocolError, match=re.escape(f"{answer.strip().decode()} ({meaning}")):
+            grbl.GrblChannel(port, TIMEOUT_S, "b").transact(request.decode().rstrip("\n"))
+
+
+def test_driver_pushed_alarm_is_a_device_fault_and_stays_in_step():
+    """G11's lines arriving before the answer to a line: DeviceFault naming ALARM:3, then in step."""
+    with expected_exchange([(b"$J=G91G21X1.000F60.000\n", ROWS["G11"][1] + ROWS["G20"][1]), ROWS["G12"]],
+                           baudrate=115200) as port:
+        ch = grbl.GrblChannel(port, TIMEOUT_S, "b")
+        with pytest.raises(DeviceFault, match=r"ALARM:3 \(Abort during cycle"):
+            ch.transact("$J=G91G21X1.000F60.000")
+        assert ch.transact("$X") == ["[MSG:Caution: Unlocked]"]
+
+
+# ---- (b) the simulator -------------------------------------------------------------------------------
 _names = itertools.count()
 
 
 @pytest.fixture
 def sim():
-    """The configured stepper bench simulator on a virtual clock, and a raw port to it."""
+    """The bench simulator of configs/sim.yaml, its EEPROM as the transcripts' bench, grbl-sim's pins."""
     clock = VirtualClock()
-    dev = build_devices(load_config(SIM_CONFIG), clock, ["stepper_bench"])["stepper_bench"].device
+    config = load_config(ROOT / "configs" / "sim.yaml")
+    dev = build_devices(config, clock, ["stepper_bench"])["stepper_bench"].device
+    dev.pins = "PXYZRHS"
+    dev.eeprom.build_info = "STEPPER_BENCH:EC2-01"
     name = f"golden.grbl.{next(_names)}"
     url = registry.register(name, dev)
     port = serial.serial_for_url(url, baudrate=115200, timeout=TIMEOUT_S)
@@ -128,89 +182,57 @@ def sim():
     registry.unregister(name)
 
 
-def line(port) -> bytes:
-    return port.read_until(b"\n")
+def ask(port, request: bytes, n: int = 4096) -> bytes:
+    port.write(request)
+    return port.read(n)
 
 
-def status(port) -> re.Match:
-    port.write(b"?")  # realtime: no line end, answered at once, no ok
-    m = STATUS_RE.match(line(port))
-    assert m, "status report not in the documented form"
-    return m
-
-
-def test_sim_status_report_form_and_values(sim):
+@pytest.mark.parametrize("row", ["G1", "G2", "G4", "G5", "G13", "G14", "G15", "G16", "G17", "G22"])
+def test_sim_answers_the_row(sim, row):
     dev, clock, port = sim
-    m = status(port)
-    assert m[1] == b"Idle" and float(m[2]) == 0.0
-    port.write(b"$N=300\n$RUN\n")
-    assert line(port) == OK and line(port) == OK
+    request, answer = ROWS[row]
+    assert ask(port, request) == answer
+
+
+def test_sim_rows_while_jogging_and_in_alarm(sim):
+    dev, clock, port = sim
+    assert ask(port, ROWS["G5"][0]) == b"ok\r\n"
+    clock.sleep(1.0)
+    assert ask(port, ROWS["G18"][0]) == ROWS["G18"][1]
+    assert ask(port, ROWS["G19"][0]) == ROWS["G19"][1]
+    port.timeout = 1.0  # the welcome message comes 500 ms after ALARM:3
+    assert ask(port, ROWS["G11"][0]) == ROWS["G11"][1]
+    port.timeout = TIMEOUT_S
+    assert ask(port, ROWS["G20"][0]) == ROWS["G20"][1]
+    assert ask(port, ROWS["G12"][0]) == ROWS["G12"][1]
+    assert ask(port, ROWS["G10"][0]) == ROWS["G10"][1]
+
+
+def test_sim_holds_lines_in_a_hold_at_rest(sim):
+    dev, clock, port = sim
+    assert ask(port, ROWS["G8"][0]) == b""
+    assert ask(port, b"?").startswith(b"<Hold:0|")
+    assert ask(port, b"$I\n") == b""  # held
+    assert ask(port, ROWS["G9"][0]).endswith(b"ok\r\n")  # answered on resume
+
+
+def test_sim_jog_cancel_stops_and_flushes(sim):
+    dev, clock, port = sim
+    for _ in range(3):
+        assert ask(port, ROWS["G5"][0]) == b"ok\r\n"
+    clock.sleep(2.0)
+    assert ask(port, ROWS["G7"][0]) == b""
+    clock.sleep(1.0)
+    idle = ask(port, b"?")
+    assert idle.startswith(b"<Idle|MPos:")
     clock.sleep(10.0)
-    m = status(port)
-    assert m[1] == b"Run" and float(m[2]) == pytest.approx(10.0 * dev.rate_dps(), abs=1e-3)
+    assert ask(port, b"?").split(b"|")[1] == idle.split(b"|")[1]  # nothing queued moves on
 
 
-def test_sim_answers_ok_to_an_empty_line(sim):
-    """G1: "If an empty line with only a return is sent to Grbl, it ... will return an ok"."""
-    dev, clock, port = sim
-    port.write(b"\n")
-    assert line(port) == OK
+def test_sim_blank_eeprom_power_up(sim):
+    """G21: a freshly flashed board restores and lists its defaults before the welcome message."""
+    from bench.sim.stepper_bench import StepperBenchSim
 
-
-@pytest.mark.parametrize("request_, answer", [
-    (b"$WARP\n", b"error:3\r\n"),  # '$' system command not recognized or supported
-    (b"$N=abc\n", b"error:2\r\n"),  # numeric value format is not valid
-    (b"$RUN\n", b"error:22\r\n"),  # feed rate (speed) has not yet been set
-    (b"$N=" + b"1" * 100 + b"\n", b"error:11\r\n"),  # max characters per line exceeded
-])
-def test_sim_error_codes(sim, request_, answer):
-    dev, clock, port = sim
-    port.write(request_)
-    assert line(port) == answer
-    assert not dev.running and dev.n == 0
-
-
-def test_sim_feed_hold_and_resume(sim):
-    """G11/G12: ``!`` holds (Hold:0, the table stops), ``~`` resumes."""
-    dev, clock, port = sim
-    port.write(b"$N=300\n$RUN\n")
-    assert line(port) == OK and line(port) == OK
-    port.write(b"!")
-    m = status(port)
-    assert m[1] == b"Hold:0"
-    held_at = float(m[2])
-    clock.sleep(5.0)
-    assert float(status(port)[2]) == pytest.approx(held_at, abs=1e-9)
-    port.write(b"~")
-    assert status(port)[1] == b"Run"
-
-
-def test_sim_reset_in_motion_raises_alarm_3_and_locks_until_unlocked(sim):
-    """G8-G10: 0x18 while turning: ALARM:3, welcome message, unlock hint; $RUN is locked out
-    (error:9) until $X."""
-    dev, clock, port = sim
-    port.write(b"$N=300\n$RUN\n")
-    assert line(port) == OK and line(port) == OK
-    port.write(b"\x18")
-    assert port.read(len(ALARM_3 + WELCOME + ALARM_LOCK_MSG)) == ALARM_3 + WELCOME + ALARM_LOCK_MSG
-    assert status(port)[1] == b"Alarm"
-    port.write(b"$RUN\n")
-    assert line(port) == b"error:9\r\n"
-    port.write(b"$X\n")
-    assert port.read(len(UNLOCKED)) == UNLOCKED
-    port.write(b"$RUN\n")
-    assert line(port) == OK
-
-
-def test_sim_reset_at_rest_prints_only_the_welcome_message(sim):
-    """G8: "The start up message always prints upon startup and after a reset"."""
-    dev, clock, port = sim
-    port.write(b"\x18")
-    assert port.read(len(WELCOME) + 16) == WELCOME
-
-
-def test_sim_version_lines(sim):
-    """G2 form: [VER:version:string], [OPT:codes], ok."""
-    dev, clock, port = sim
-    port.write(b"$I\n")
-    assert VERSION_RE.match(port.read(256))
+    fresh = StepperBenchSim(VirtualClock(), None, None)
+    out = fresh.take_output(0.0)
+    assert out.startswith(ROWS["G21"][1]) and out.endswith(WELCOME) and out.count(b"\r\n$") == 34

@@ -1,6 +1,6 @@
 """Regenerate the recorded sessions that CI replays (tests/test_replay.py replays every .h5 here).
 
-    .venv/bin/python tests/sessions/regenerate.py
+    .venv/bin/python tests/sessions/regenerate.py [NAME ...]     # all, or the sessions named
 
 Each session is a dry-run (``bench run --sim``) of a small procedure written below, recorded with
 the simulator; the old files are replaced. The procedures are kept next to the files
@@ -40,11 +40,25 @@ def rate_transfer_short() -> str:
     return t
 
 
+STEPPER = """schema: bench-procedure/1
+name: stepper_two_rates
+title: The stepper bench (stock GRBL 1.1) at 1 and 0.2 deg/s, then stopped
+instruments: [stepper_bench]
+steps:
+  - bench_rate: {instrument: stepper_bench, rate: 1 deg/s, settle: 20 s, name: one degree per second}
+  - bench_rate: {instrument: stepper_bench, rate: 0.2 deg/s, settle: 20 s, name: a fifth of a degree per second}
+  - bench_rate: {instrument: stepper_bench, rate: 0 deg/s, name: stop}
+"""
+
 SESSIONS = {
     "rate_transfer_short": (rate_transfer_short, []),
     "chamber_short": (lambda: CHAMBER.format(limit="70 degC"), []),
     "chamber_interlock_abort": (lambda: CHAMBER.format(limit="22 degC").replace("chamber_short", "chamber_interlock_abort"), []),
+    "stepper_two_rates": (lambda: STEPPER, []),
 }
+ELSEWHERE = {"stepper_two_rates": ROOT / "tests" / "data"}
+"""Sessions kept out of this directory (whose files other tests count): replayed by their own tests
+(tests/test_stepper_bench.py)."""
 
 
 def record(procedure: Path, out_dir: Path, extra: list[str]) -> Path:
@@ -58,15 +72,18 @@ def record(procedure: Path, out_dir: Path, extra: list[str]) -> Path:
     return new
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT))
-    for name, (text, extra) in SESSIONS.items():
-        proc = HERE / f"{name}.yaml"
+    names = (sys.argv[1:] if argv is None else argv) or list(SESSIONS)
+    for name in names:
+        text, extra = SESSIONS[name]
+        where = ELSEWHERE.get(name, HERE)
+        proc = where / f"{name}.yaml"
         proc.write_text(text(), encoding="utf-8")
         with tempfile.TemporaryDirectory() as d:
             f = record(proc, Path(d), extra)
-            shutil.copy(f, HERE / f"{name}.h5")
-        print(f"{HERE / (name + '.h5')}")
+            shutil.copy(f, where / f"{name}.h5")
+        print(f"{where / (name + '.h5')}")
     return 0
 
 

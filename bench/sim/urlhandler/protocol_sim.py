@@ -37,6 +37,9 @@ class Serial(SerialBase):
         self._reconfigure_port()
         self.is_open = True
         self.reset_input_buffer()
+        on_open = getattr(self.device, "on_open", None)
+        if on_open is not None:
+            on_open()  # a device that resets when its port opens (an Arduino's DTR)
 
     def from_url(self, url: str) -> str:
         parts = urlparse.urlsplit(url)
