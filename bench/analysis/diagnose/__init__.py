@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench.analysis.dataset import Dataset
+from bench.analysis.diagnose import noise as nm
 from bench.analysis.diagnose.data import Prepared, prepare
 from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
                                             build_state, has_temp_cubic, search)
@@ -31,7 +32,7 @@ __all__ = ["diagnose", "DiagnoseResult", "Finding", "write_report", "IC_MIN", "G
 
 
 def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: tuple[str, ...] | frozenset[str] = (),
-             progress: Any = None) -> DiagnoseResult:
+             progress: Any = None, power_on_at: float | None = None) -> DiagnoseResult:
     """Fit the baseline sensor model (plus the model file's known terms) to ``ds``, search the
     vocabulary for missing effects by blocked cross-validation, and return the findings.
 
@@ -41,7 +42,10 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
     again. ``seed`` is accepted for interface stability; the method is deterministic. ``hidden``:
     vocabulary names left out of the search (what the engine says about an effect it has no name
     for; the tests hide the injected effect this way). ``progress``: a callable taking one line of
-    text, called as the search goes.
+    text, called as the search goes. ``power_on_at``: when the data have no ``power_on_s`` column,
+    the time (s, on the ``time_s`` axis) the sensor was powered on (``--power-on-at``); None: the
+    first sample's time when the log starts within the first minute of power (module ``data``,
+    :data:`~bench.analysis.diagnose.data.POWER_ON_DEFAULT`).
     """
     del seed  # deterministic: blocked folds, grids, no random draws
     from bench.analysis.diagnose.blas import single_thread
@@ -50,12 +54,12 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
     if unknown:
         raise InputError(f"diagnose: unknown vocabulary name(s) to hide: {', '.join(sorted(unknown))}")
     with single_thread():
-        return _diagnose(ds, model_path, frozenset(hidden), progress)
+        return _diagnose(ds, model_path, frozenset(hidden), progress, power_on_at)
 
 
 def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = frozenset(),
-              progress: Any = None) -> DiagnoseResult:
-    p = prepare(ds)
+              progress: Any = None, power_on_at: float | None = None) -> DiagnoseResult:
+    p = prepare(ds, power_on_at=power_on_at)
     raw, spec_effects, model_terms = None, [], []
     if model_path is not None:
         raw, spec_effects, model_terms = _load_model(model_path)
@@ -64,15 +68,44 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     fixed = []
     for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
         fixed += _fixed_terms(p, name, axis, nl, ctx)
-    found = search(p, base_terms + fixed, hidden=hidden, progress=progress)
+    found, ow = _select(p, base_terms + fixed, hidden, progress)
+    # the sensor's noise model from what is left; when it is not white, select again against it
+    resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
+    models = nm.fit_models(p, resid, hidden)
+    for _ in range(NOISE_ROUNDS):
+        whiten = {a: m.whitener() for a, m in models.items() if not m.is_white}
+        if not whiten and not p.whiten:
+            break
+        if progress is not None:
+            progress("selecting again against the noise model ("
+                     + "; ".join(f"{a}: {m.describe()}" for a, m in models.items()) + ")")
+        p.whiten = whiten
+        found, ow = _select(p, base_terms + fixed, hidden, progress)
+        resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
+        again = nm.fit_models(p, resid, hidden)
+        stable = nm.same_structure(models, again)
+        models = again
+        if stable:
+            break
+    noise = nm.findings(p, models, resid, ow.unexplained, hidden)
+    return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid))
+
+
+NOISE_ROUNDS = 2
+"""Most selections against a re-fitted noise model after the first (white) one."""
+
+
+def _select(p: Prepared, terms: list[Term], hidden: frozenset[str], progress: Any) -> tuple[Search, Any]:
+    """Forward/backward selection and the open-world checks on the current fits (prewhitened by
+    ``p.whiten``): (search with the final sequence, open-world outcome)."""
     from bench.analysis.diagnose.engine import sequence
     from bench.analysis.diagnose.openworld import finish
 
-    ow = finish(p, base_terms + fixed, [t for t in found.final.terms if t.effect != "baseline" and not t.fixed],
-                hidden, progress)
+    found = search(p, terms, hidden=hidden, progress=progress)
+    ow = finish(p, terms, [t for t in found.final.terms if t.effect != "baseline" and not t.fixed], hidden, progress)
     found.dropped.extend(ow.dropped)
-    found.sequence, found.final = sequence(p, build_state(p, base_terms + fixed), ow.found)
-    return _result(p, ds, found, model_path, raw, fixed, ow)
+    found.sequence, found.final = sequence(p, build_state(p, terms), ow.found)
+    return found, ow
 
 
 # ---- model file -----------------------------------------------------------------------------------
@@ -157,7 +190,7 @@ def _noise_floor(r: np.ndarray) -> float:
 
 
 def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: dict[str, Any] | None,
-            fixed: list[Term], ow: Any) -> DiagnoseResult:
+            fixed: list[Term], ow: Any, noise: list[Finding], noise_section: dict[str, Any]) -> DiagnoseResult:
     skipped, reasons = [], {}
     for cand in CANDIDATES.values():
         miss = cand.missing(p)
@@ -181,7 +214,7 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
-    findings.extend(ow.noise)
+    findings.extend(noise)
     floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
     from bench.analysis.diagnose.structure import analyse
 
@@ -192,7 +225,7 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
         not_excited=s.not_excited, noise_floor=floors, rows=p.n, sample_rate_hz=p.fs, model_path=model_path,
         base_model=raw, fitted_baseline=_fitted_baseline(p, s), rounds=s.rounds, dropped=s.dropped,
         fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, unexplained=ow.unexplained,
-        band_s=p.blocks.length / p.fs, _internal=(p, s))
+        band_s=p.blocks.length / p.fs, noise=noise_section, _internal=(p, s))
 
 
 def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:

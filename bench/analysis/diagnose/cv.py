@@ -40,8 +40,16 @@ class CVFit:
         return float(self.sse_block.sum())
 
 
-def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = True) -> CVFit:
-    """Fit by blocked CV. ``A`` (B, m+1, m+1) augmented block Grams, ``P`` (m, m) penalty or None."""
+def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = True,
+           S: np.ndarray | None = None, gls: bool = False) -> CVFit:
+    """Fit by blocked CV. ``A`` (B, m+1, m+1) augmented block Grams, ``P`` (m, m) penalty or None,
+    ``S`` (B, m+1) block sums of [X | y] for the held-out residual's block sums (default: row 0 of
+    ``A``, the sums when column 0 is the constant 1; a prewhitened design passes its own).
+
+    ``gls``: the rows are prewhitened by a correlated noise model. Held-out blocks would then leak
+    (a whitened row depends on the rows before it, in other folds), so the per-block errors and sums
+    are those of the whole-data fit (the generalised least-squares likelihood), and ``df`` is always
+    computed (the criterion charges it)."""
     m = A.shape[1] - 1
     fold = blocks.fold_of
     K = blocks.folds
@@ -63,13 +71,19 @@ def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = 
     v = np.concatenate([beta_k, -np.ones((K, 1))], axis=1)
     vb = v[fold]
     sse_block = np.einsum("bi,bij,bj->b", vb, A, vb)
-    sum_block = -np.einsum("bj,bj->b", A[:, 0, :], vb) if m else np.zeros(A.shape[0])
+    if S is not None:
+        sum_block = -np.einsum("bj,bj->b", S, vb)
+    else:
+        sum_block = -np.einsum("bj,bj->b", A[:, 0, :], vb) if m else np.zeros(A.shape[0])
     sse_train = np.einsum("ki,kij,kj->k", v, train, v)
     vf = np.concatenate([beta, [-1.0]])
     sse_full = float(vf @ tot @ vf)
     df = float(m)
-    if need_df and P is not None:
+    if (need_df or gls) and P is not None:
         df = float(np.trace(_solve(Gf[None], tot[None, :m, :m])[0]))
+    if gls:
+        sse_block = np.einsum("i,bij,j->b", vf, A, vf)
+        sum_block = -(S if S is not None else A[:, 0, :]) @ vf
     return CVFit(np.maximum(sse_block, 0.0), np.maximum(sse_train, 0.0), beta, df, max(sse_full, 0.0), beta_k, sum_block)
 
 
@@ -170,6 +184,11 @@ def augment(A: np.ndarray, Xb: np.ndarray, yb: np.ndarray, blocks: Blocks, Z: np
         out[:, m:m + q, -1] = zy
         out[:, -1, m:m + q] = zy
     return out
+
+
+def block_sums(blocks: Blocks, z: np.ndarray) -> np.ndarray:
+    """Per-block column sums (B, q) of ``z`` (n,) or (n, q)."""
+    return blocks.shaped(z).sum(axis=1)
 
 
 def full_gram(X: np.ndarray, y: np.ndarray) -> np.ndarray:

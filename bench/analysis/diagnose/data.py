@@ -155,6 +155,22 @@ class Prepared:
     """(rows, stretches) left out because the unit was being moved (:func:`motion_rows`)."""
     left_out: list[str] = field(default_factory=list)
     """Gyro columns left out because they hold one value (``"gyro_x_dps is constant (0 in all 400 rows)"``)."""
+    whiten: dict = field(default_factory=dict)
+    """axis -> :class:`bench.analysis.noise_model.Whitener`: the fits on that axis are generalised least
+    squares against the axis' noise model (response and every design column prewhitened); empty:
+    ordinary least squares (white noise)."""
+    power_on_note: str = ""
+    """How ``power_on_s`` was obtained when the data had none (``--power-on-at``), else empty."""
+
+    def w(self, axis: str, z):
+        """``z`` (n,) or (n, q) columns (a sparse hat basis made dense) prewhitened by the axis' noise
+        model, unchanged without one; None stays None."""
+        wh = self.whiten.get(axis)
+        if wh is None or z is None:
+            return z
+        if hasattr(z, "dense"):
+            z = z.dense()
+        return wh.apply(z, self.t)
 
     @property
     def n(self) -> int:
@@ -170,6 +186,8 @@ class Prepared:
                      f"{MOTION_G:g} g, ±{MOTION_PAD_S:g} s)")
         if self.left_out:
             moved += "; left out " + "; ".join(self.left_out)
+        if self.power_on_note:
+            moved += "; " + self.power_on_note
         if self.bin_rows <= 1:
             return f"analysed {self.n:,} rows at {self.fs:.4g} Hz" + moved
         why = f", {self.bin_reason}" if self.bin_reason else ""
@@ -202,9 +220,45 @@ class Prepared:
         return self.cache[key]
 
 
-def prepare(ds: Dataset) -> Prepared:
+POWER_ON_META = "power_on_at_s"
+"""Metadata key (CSV ``# power_on_at_s: 12.5``) giving the power-on time of a log without a
+``power_on_s`` column, like ``--power-on-at``."""
+
+
+def power_on_column(ds: Dataset, power_on_at: float | None) -> tuple[np.ndarray | None, str]:
+    """Time since power-on (s) for every row and how it was obtained.
+
+    The ``power_on_s`` column when the data have one (``power_on_at`` is then refused: two answers
+    to one question); else ``time_s − power_on_at`` from the option or the :data:`POWER_ON_META`
+    metadata; else None (the default: the warm-up is not searched, and ``skipped`` says how to
+    give the power-on time). The power-on may not be after the first row (rows before it are no
+    sensor output)."""
+    meta = ds.meta.get(POWER_ON_META)
+    if "power_on_s" in ds.columns:
+        if power_on_at is not None:
+            raise InputError(f"{ds.source}: the data have a power_on_s column; --power-on-at is for logs without one")
+        return np.asarray(ds.columns["power_on_s"], dtype=float), ""
+    how = "--power-on-at"
+    if power_on_at is None and meta is not None:
+        if not isinstance(meta, float):
+            raise InputError(f"{ds.source}: metadata {POWER_ON_META} must be a number of seconds, got {meta!r}")
+        power_on_at, how = float(meta), f"metadata {POWER_ON_META}"
+    if power_on_at is None:
+        return None, ""
+    if not math.isfinite(power_on_at):
+        raise InputError(f"{ds.source}: {how} must be a finite time in s, got {power_on_at!r}")
+    t = np.asarray(ds.columns["time_s"], dtype=float)
+    first = float(np.nanmin(t)) if t.size else 0.0
+    if power_on_at > first + 1e-9:
+        raise InputError(f"{ds.source}: {how} {power_on_at:g} s is after the first row (time_s {first:g} s): rows "
+                         "before the power-on are no sensor output; give a time at or before the first row")
+    return t - power_on_at, f"power-on at t = {power_on_at:g} s ({how})"
+
+
+def prepare(ds: Dataset, power_on_at: float | None = None) -> Prepared:
     """Check ``ds`` and extract the arrays; :class:`InputError` when diagnose cannot run on it.
-    More than :data:`BIN_MIN_ROWS` rows are averaged into bins (:func:`bin_length`)."""
+    More than :data:`BIN_MIN_ROWS` rows are averaged into bins (:func:`bin_length`).
+    ``power_on_at``: the power-on time of a log without ``power_on_s`` (:func:`power_on_column`)."""
     if "time_s" not in ds.columns:
         raise InputError(f"{ds.source}: diagnose needs a time_s column")
     axes = [a for a in AXES if GYRO[a] in ds.columns]
@@ -226,12 +280,15 @@ def prepare(ds: Dataset) -> Prepared:
     if np.any(np.diff(t) <= 0):
         raise InputError(f"{ds.source}: time_s must increase from row to row")
 
+    power_on, power_note = power_on_column(ds, power_on_at)
     raw: dict[str, np.ndarray] = {}
     for name in ds.columns:
         v = np.asarray(ds.columns[name], dtype=float)
         v = v if every else v[ok]
         if v.ndim == 1 and np.all(np.isfinite(v)):
             raw[name] = v
+    if power_on is not None and "power_on_s" not in raw:
+        raw["power_on_s"] = power_on if every else power_on[ok]
     present = set(raw)
     raw_fs = 1.0 / float(np.median(np.diff(t)))
     motion = (0, 0)
@@ -277,7 +334,7 @@ def prepare(ds: Dataset) -> Prepared:
                     power_on=col("power_on_s"), accel=accel, angle=col("table_angle_deg"),
                     latitude=ds.latitude_deg(), blocks=Blocks(n, length), present=present,
                     bin_rows=k, raw_rows=raw_rows, raw_fs=raw_fs, bin_reason=why, motion=motion,
-                    left_out=[constant_text(usable, c) for c in dead])
+                    left_out=[constant_text(usable, c) for c in dead], power_on_note=power_note)
     prep.table_axis = _table_axis(prep)
     if ref is not None:
         prep.blocks.balance(ref)

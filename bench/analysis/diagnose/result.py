@@ -82,6 +82,9 @@ class DiagnoseResult:
     sample and on the block-mean band) and where it lives (``openworld.py``)."""
     band_s: float = float("nan")
     """Length of the blocks whose means form the slow band (s)."""
+    noise: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Per axis: the fitted noise model in IEEE 952 units, whether the fits were prewhitened by it,
+    and the Allan read-outs of the residual (``noise.py``)."""
     structure: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict, repr=False)
     """``structure[stage][axis]`` for stage baseline/extended: the held-out residual's covariate
     correlations, Allan deviation vs white noise, spectra (``structure.analyse``)."""
@@ -96,6 +99,7 @@ class DiagnoseResult:
             "unexplained": _plain(self.unexplained),
             "skipped": list(self.skipped),
             "band_s": _num(self.band_s),
+            "noise": _plain(self.noise),
         }
 
     def summary_lines(self) -> list[str]:

@@ -187,7 +187,7 @@ class WarmupTransient(Candidate):
     resolved = ("tau_s",)
 
     def missing(self, p):
-        return [] if p.power_on is not None else ["power_on_s"]
+        return [] if p.power_on is not None else ["power_on_s, or its time with --power-on-at TIME or # power_on_at_s"]
 
     def not_excited(self, p, axis):
         if float(np.min(p.power_on)) > 600.0 and not np.any(np.diff(p.power_on) < 0):
@@ -464,9 +464,14 @@ class TimeSkew(Candidate):
 
 
 class RateRandomWalk(Candidate):
+    """A random walk of the bias: a noise term, named from the noise model (``noise.py``). As a
+    regressor (a linear spline with the random-walk prior as a penalty) it is the time probe and a
+    model file's known walk."""
+
     name = "rate_random_walk"
     nonlinear = ("k_dps_per_sqrt_s",)
     select_by_cv = True
+    noise_term = True
     KNOTS = 100
     K_GRID = tuple(float(v) for v in np.geomspace(3e-6, 1e-3, 11))
 
@@ -666,8 +671,7 @@ class ScaleFactorNonlinearity(Candidate):
 
 
 class BiasInstability(Candidate):
-    """Flicker bias noise: named from a flat stretch (slope 0) of the residual's Allan deviation above
-    its white-noise line over at least a decade of τ (``bench/analysis/diagnose/noise.py``)."""
+    """Flicker bias noise: named from the noise model (``bench/analysis/diagnose/noise.py``)."""
 
     name = "bias_instability"
     noise_term = True
@@ -683,10 +687,19 @@ class BiasInstability(Candidate):
                 f"{3600 * 0.664 * params['b_dps']:.3g} deg/h over τ = {params['tau_min_s']:.3g}-{params['tau_max_s']:.3g} s)")
 
 
+class GaussMarkov(BiasInstability):
+    """Exponentially correlated (first-order Markov) bias noise: named from the noise model."""
+
+    name = "gauss_markov"
+
+    def describe(self, params):
+        return f"correlated (Gauss-Markov) bias noise {params['sigma_dps']:.2g} deg/s, τc = {params['tau_s']:.3g} s"
+
+
 CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
     ThermalLag(), WarmupTransient(), PressureBias(), GearEccentricity(), GSensitivity(), ScaleFactorAsymmetry(),
     ScaleFactorTempco(), Hysteresis(), TimeSkew(), RateRandomWalk(), EarthRate(), BiasStep(), Periodic(),
-    ScaleFactorNonlinearity(), BiasInstability())}
+    ScaleFactorNonlinearity(), BiasInstability(), GaussMarkov())}
 """Every vocabulary term as a candidate, in vocabulary order (grown with :func:`register`)."""
 
 assert tuple(CANDIDATES) == fx.VOCABULARY
@@ -735,6 +748,7 @@ class TimeProbe(RateRandomWalk):
 
     name = "probe:time"
     where = "time (slow drift, steps, wander)"
+    noise_term = False
 
 
 class RateProbe(Probe):
