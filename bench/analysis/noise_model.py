@@ -218,21 +218,21 @@ def _basis(kind: str, omega: np.ndarray, dt: float, duration: float, tau: float 
     raise ValueError(kind)
 
 
-def _whittle(theta: np.ndarray, G: np.ndarray, b: _Bands) -> float:
-    """Band Whittle log-likelihood of S = G·θ."""
-    s = np.maximum(G @ theta, 1e-300)
+def _whittle(theta: np.ndarray, G: np.ndarray, b: _Bands, offset: np.ndarray | float = 0.0) -> float:
+    """Band Whittle log-likelihood of S = G·θ (+ a fixed ``offset`` spectrum)."""
+    s = np.maximum(G @ theta + offset, 1e-300)
     return float(-np.sum(b.count * (np.log(s) + b.mean_i / s)))
 
 
-def _fit(G: np.ndarray, b: _Bands, theta0: np.ndarray) -> tuple[np.ndarray, float]:
-    """Maximise the Whittle likelihood over θ ≥ 0 (log-parameters)."""
+def _fit(G: np.ndarray, b: _Bands, theta0: np.ndarray, offset: np.ndarray | float = 0.0) -> tuple[np.ndarray, float]:
+    """Maximise the Whittle likelihood over θ ≥ 0 (log-parameters), S = G·θ + ``offset``."""
     from scipy.optimize import minimize
 
     floor = np.maximum(theta0 * 1e-8, 1e-300)
 
     def f(x: np.ndarray) -> tuple[float, np.ndarray]:
         th = np.exp(x)
-        s = np.maximum(G @ th, 1e-300)
+        s = np.maximum(G @ th + offset, 1e-300)
         val = -np.sum(b.count * (np.log(s) + b.mean_i / s))
         grad_s = -b.count * (1.0 / s - b.mean_i / (s * s))
         return -val, -(G.T @ grad_s) * th
@@ -240,14 +240,14 @@ def _fit(G: np.ndarray, b: _Bands, theta0: np.ndarray) -> tuple[np.ndarray, floa
     x0 = np.log(np.maximum(theta0, floor))
     res = minimize(f, x0, jac=True, method="L-BFGS-B", options={"maxiter": 300})
     th = np.exp(res.x)
-    return th, _whittle(th, G, b)
+    return th, _whittle(th, G, b, offset)
 
 
 def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[str, ...] = ("flicker", "rrw", "gm"),
-                    ic_min: float = IC_MIN) -> NoiseModel:
+                    ic_min: float = IC_MIN, max_tau_s: float | None = None) -> NoiseModel:
     """Fit the noise model of residual ``r`` (deg/s, one sample every ``dt_s`` s): white, then forward
     selection of flicker, rate random walk and Gauss-Markov processes (module docstring). ``allow``
-    limits the kinds tried."""
+    limits the kinds tried, ``max_tau_s`` the Gauss-Markov correlation times."""
     r = np.asarray(r, dtype=float)
     n = r.shape[0]
     duration = n * dt_s
@@ -262,6 +262,8 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
     theta, ll = _fit(G, b, np.array([var]))
     model.loglik = ll
     lo_tau, hi_tau = 0.5 * dt_s, GM_RESOLVED * duration
+    if max_tau_s is not None:
+        hi_tau = max(min(hi_tau, max_tau_s), 1.01 * lo_tau)
     taus = np.geomspace(lo_tau, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / lo_tau)) + 1, 2))
     while len(comps) - 1 < MAX_COMPONENTS:
         best = None
@@ -282,6 +284,8 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
                 share = float(np.max(th[-1] * col / np.maximum(G2 @ th, 1e-300)))
                 tried.append((d_bic, k_, tau, th, ll2, col, share))
         for d_bic, k_, tau, th, ll2, col, share in sorted(tried, key=lambda x: x[0]):
+            if k_ == "gm" and tau >= 0.99 * hi_tau:
+                continue  # a correlation time at the top of the grid is not resolved
             if d_bic < -ic_min and share >= MATERIAL_SHARE:
                 best = (d_bic, k_, tau, th, ll2, col, share)
                 break
@@ -292,7 +296,7 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
             break
         d_bic, k_, tau, th, ll2, col, share = best
         if k_ == "gm":
-            tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2)
+            tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, hi_tau)
         comps.append((k_, tau))
         G = np.column_stack([G, col])
         theta, ll = th, ll2
@@ -310,15 +314,71 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
     return model
 
 
+def _columns(model: NoiseModel, omega: np.ndarray) -> np.ndarray:
+    """The spectral basis of ``model``'s components at ω (white first) and their parameters θ."""
+    cols = [_basis("white", omega, model.dt_s, model.duration_s)]
+    if model.flicker_b > 0:
+        cols.append(_basis("flicker", omega, model.dt_s, model.duration_s))
+    if model.rrw_k > 0:
+        cols.append(_basis("rrw", omega, model.dt_s, model.duration_s))
+    for _, tau in model.gm:
+        cols.append(_basis("gm", omega, model.dt_s, model.duration_s, tau))
+    return np.column_stack(cols)
+
+
+def _theta(model: NoiseModel) -> np.ndarray:
+    th = [model.white_var]
+    if model.flicker_b > 0:
+        th.append(model.flicker_b ** 2)
+    if model.rrw_k > 0:
+        th.append(model.rrw_k ** 2)
+    th += [s * s for s, _ in model.gm]
+    return np.asarray(th, float)
+
+
+PARTS = 4
+"""Stretches of the record the stationarity check compares."""
+
+
+SLOW_SAMPLES = 20.0
+"""Components with correlation times of at least this many samples (and flicker, random walk) are
+the slow part the stationarity check tests; faster ones may change level between stretches."""
+
+
+def stationarity(r: np.ndarray, model: NoiseModel, parts: int = PARTS) -> float:
+    """ΔBIC of "each of ``parts`` consecutive stretches has its own slow-component variances" against
+    "the slow components of the whole record" (the fast ones, white and short Gauss-Markov, free in
+    each stretch under both; band Whittle likelihood of each stretch). Strongly negative when the slow
+    part is not stationary noise but a transient, a step, a drift or structure that follows a
+    covariate through the run (its power sits in some stretches only). 0 without slow components."""
+    fast = [True] + [False] * (model.flicker_b > 0) + [False] * (model.rrw_k > 0) + [
+        t < SLOW_SAMPLES * model.dt_s for _, t in model.gm]
+    fast = np.asarray(fast)
+    k_slow = int((~fast).sum())
+    n = r.shape[0] // parts
+    if k_slow == 0 or n < 64:
+        return 0.0
+    th = _theta(model)
+    lr, m = 0.0, 0
+    for q in range(parts):
+        b = _bands(r[q * n:(q + 1) * n])
+        G = _columns(model, b.omega)
+        _, ll_free = _fit(G, b, th)
+        _, ll_shared = _fit(G[:, fast], b, th[fast], offset=G[:, ~fast] @ th[~fast])
+        lr += 2.0 * max(ll_free - ll_shared, 0.0)
+        m += b.ordinates
+    return -lr + parts * k_slow * math.log(max(m, 2))
+
+
 def _refine_gm(G: np.ndarray, b: _Bands, theta: np.ndarray, tau: float, dt: float, duration: float,
-               th: np.ndarray, ll: float) -> tuple[float, np.ndarray, float, np.ndarray]:
+               th: np.ndarray, ll: float, hi_tau: float) -> tuple[float, np.ndarray, float, np.ndarray]:
     """The Gauss-Markov correlation time refined between the grid neighbours (golden section on
     log τ of the profiled likelihood)."""
     from scipy.optimize import minimize_scalar
 
     step = math.log(10.0) / GM_PER_DECADE
     lo = max(math.log(tau) - step, math.log(0.5 * dt))
-    hi = min(math.log(tau) + step, math.log(GM_RESOLVED * duration))
+    hi = max(min(math.log(tau) + step, math.log(hi_tau)), lo)
 
     def neg(x: float) -> float:
         col = _basis("gm", b.omega, dt, duration, math.exp(x))

@@ -69,9 +69,13 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
         fixed += _fixed_terms(p, name, axis, nl, ctx)
     found, ow = _select(p, base_terms + fixed, hidden, progress)
-    # the sensor's noise model from what is left; when it is not white, select again against it
+    # the sensor's noise model from what is left; when it is not white, the named causes are tested
+    # again against it (generalised least squares): correlated noise may have passed for structure,
+    # so a term may go, none comes in that white-noise selection did not name
     resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
     models = nm.fit_models(p, resid, hidden)
+    named = {t.effect for t in ow.found} | {"rate_random_walk"}
+    hidden = hidden | frozenset(n for n in CANDIDATES if n not in named and not CANDIDATES[n].noise_term)
     for _ in range(NOISE_ROUNDS):
         whiten = {a: m.whitener() for a, m in models.items() if not m.is_white}
         if not whiten and not p.whiten:

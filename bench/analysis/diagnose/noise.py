@@ -26,7 +26,7 @@ import numpy as np
 from bench.analysis.diagnose.data import Prepared
 from bench.analysis.diagnose.engine import Term, build_state
 from bench.analysis.diagnose.result import Finding
-from bench.analysis.noise_model import NoiseModel, fit_noise_model
+from bench.analysis.noise_model import IC_MIN, NoiseModel, fit_noise_model, stationarity
 
 KINDS = {"bias_instability": "flicker", "rate_random_walk": "rrw", "gauss_markov": "gm"}
 """Vocabulary noise term -> noise-model component kind."""
@@ -59,9 +59,31 @@ def residuals(p: Prepared, terms: list[Term], unexplained: list[dict[str, Any]])
 
 
 def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str] = frozenset()) -> dict[str, NoiseModel]:
-    """The noise model of each axis (kinds of hidden vocabulary names left out)."""
-    allow = tuple(k for name, k in KINDS.items() if name not in hidden)
-    return {a: fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=allow) for a, r in resid.items()}
+    """The noise model of each axis. It stays white (the fits ordinary least squares, slow structure
+    left to the probes) when
+
+    * its slow part is not stationary (:func:`bench.analysis.noise_model.stationarity`: a transient,
+      a step, a drift or structure that follows the run's covariates has its power in some stretches
+      only): that is structure, not the sensor's noise;
+    * a noise term is hidden (``hidden``): with part of its noise vocabulary missing the model would
+      give the noise another term's name."""
+    out = {}
+    for a, r in resid.items():
+        if any(name in hidden for name in KINDS):
+            m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
+            m.steps.append({"component": "correlated noise", "d_bic": 0.0, "accepted": False,
+                            "reason": "a noise term is hidden: white only"})
+            out[a] = m
+            continue
+        m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows)
+        st = stationarity(r, m)
+        if st < IC_MIN:
+            white = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
+            white.steps.append({"component": "slow part", "d_bic": st, "accepted": False,
+                                "reason": f"not stationary (ΔBIC {st:+.0f} for separate stretches): left to the probes"})
+            m = white
+        out[a] = m
+    return out
 
 
 def same_structure(old: dict[str, NoiseModel], new: dict[str, NoiseModel]) -> bool:

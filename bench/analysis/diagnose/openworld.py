@@ -1,6 +1,7 @@
 """After selection: what the named terms may claim, and the structure that nothing in the vocabulary
 names (``docs/diagnose.md``, "Open world"). Noise terms are named by the noise model (``noise.py``).
 
+0. The search's catch-all random walk is dropped: noise terms are named by the noise model.
 1. **Bias steps** are not named when a covariate changes at the same instant.
 2. **Specific evidence.** A named term of a family (``"time"``: slow terms, ``"rate"``: static
    functions of the rate) must still be needed when the family's generic probe is in the model,
@@ -217,6 +218,10 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
     found = list(found)
     dropped: list[dict[str, Any]] = []
     excess: dict[str, Excess] = {}
+
+    # 1. the catch-all random walk never keeps its name: the noise model names the noise
+    for term in [t for t in found if t.effect == "rate_random_walk" and not t.fixed]:
+        found = _drop(dropped, found, term, "a random walk is a noise term: the noise model names it")
 
     # bias steps: not when a covariate changes at the same time
     for term in [t for t in found if t.effect == "bias_step" and not t.fixed]:

@@ -464,14 +464,13 @@ class TimeSkew(Candidate):
 
 
 class RateRandomWalk(Candidate):
-    """A random walk of the bias: a noise term, named from the noise model (``noise.py``). As a
-    regressor (a linear spline with the random-walk prior as a penalty) it is the time probe and a
-    model file's known walk."""
+    """A random walk of the bias: a linear spline with the random-walk prior as a penalty. The search
+    takes it as the catch-all of slow structure (named causes get their second chance against it);
+    it never keeps the name: noise terms are named by the noise model (``noise.py``)."""
 
     name = "rate_random_walk"
     nonlinear = ("k_dps_per_sqrt_s",)
     select_by_cv = True
-    noise_term = True
     KNOTS = 100
     K_GRID = tuple(float(v) for v in np.geomspace(3e-6, 1e-3, 11))
 
