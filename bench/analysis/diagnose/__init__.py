@@ -59,7 +59,7 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
 
 def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = frozenset(),
               progress: Any = None, power_on_at: float | None = None) -> DiagnoseResult:
-    p = prepare(ds, power_on_at=power_on_at)
+    p = prepare(ds, power_on_at=power_on_at, fit_lines="periodic" not in hidden)
     raw, spec_effects, model_terms = None, [], []
     if model_path is not None:
         raw, spec_effects, model_terms = _load_model(model_path)
@@ -218,6 +218,10 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
+    for ln in p.lines:  # coherent lines above the bins' reach, fitted on the raw samples
+        findings.append(Finding("periodic", ln.axis, {"amplitude_dps": ln.amplitude_dps, "frequency_hz": ln.frequency_hz,
+                                                      "phase_rad": ln.phase_rad}, ln.rms_before, ln.rms_after,
+                                {"gain_heldout": ln.gain_heldout, "fitted_on": "raw samples, before binning"}))
     findings.extend(noise)
     floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
     from bench.analysis.diagnose.structure import analyse

@@ -54,7 +54,9 @@ def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = 
     fold = blocks.fold_of
     K = blocks.folds
     tot = A.sum(axis=0)
-    per_fold = np.stack([A[fold == k].sum(axis=0) for k in range(K)])
+    onehot = np.zeros((K, A.shape[0]))
+    onehot[fold, np.arange(A.shape[0])] = 1.0
+    per_fold = (onehot @ A.reshape(A.shape[0], -1)).reshape(K, *A.shape[1:])
     train = tot[None] - per_fold
     G = train[:, :m, :m].copy()
     h = train[:, :m, m]
@@ -70,21 +72,27 @@ def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = 
     beta = _solve(Gf[None], tot[None, :m, m])[0]
     v = np.concatenate([beta_k, -np.ones((K, 1))], axis=1)
     vb = v[fold]
-    sse_block = np.einsum("bi,bij,bj->b", vb, A, vb)
+    sse_block = _quad(A, vb)
     if S is not None:
         sum_block = -np.einsum("bj,bj->b", S, vb)
     else:
         sum_block = -np.einsum("bj,bj->b", A[:, 0, :], vb) if m else np.zeros(A.shape[0])
-    sse_train = np.einsum("ki,kij,kj->k", v, train, v)
+    sse_train = _quad(train, v)
     vf = np.concatenate([beta, [-1.0]])
     sse_full = float(vf @ tot @ vf)
     df = float(m)
     if (need_df or gls) and P is not None:
         df = float(np.trace(_solve(Gf[None], tot[None, :m, :m])[0]))
     if gls:
-        sse_block = np.einsum("i,bij,j->b", vf, A, vf)
+        sse_block = _quad(A, np.broadcast_to(vf, (A.shape[0], vf.size)))
         sum_block = -(S if S is not None else A[:, 0, :]) @ vf
     return CVFit(np.maximum(sse_block, 0.0), np.maximum(sse_train, 0.0), beta, df, max(sse_full, 0.0), beta_k, sum_block)
+
+
+def _quad(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """vᵦᵀ A_b vᵦ for stacked matrices ``A`` (B, m, m) and vectors ``v`` (B, m) (batched products:
+    a three-operand einsum does not use BLAS)."""
+    return np.sum(np.matmul(A, v[:, :, None])[:, :, 0] * v, axis=1)
 
 
 def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:

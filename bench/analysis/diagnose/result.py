@@ -199,7 +199,7 @@ def _num(v: float) -> float | None:
 
 def _evidence(ev: dict[str, Any]) -> dict[str, Any]:
     keep = ("d_ic", "phi", "t", "d_ic_given_probe", "allan_excess_slope", "allan_tau_range_s", "increment_kurtosis",
-            "fitted_scale")
+            "fitted_scale", "gain_heldout", "fitted_on", "noise_model", "d_bic", "tau_s_interval")
     return {k: ev[k] for k in keep if k in ev}
 
 
