@@ -350,14 +350,15 @@ def stationarity(r: np.ndarray, model: NoiseModel, parts: int = PARTS) -> float:
     "the slow components of the whole record" (the fast ones, white and short Gauss-Markov, free in
     each stretch under both; band Whittle likelihood of each stretch). Strongly negative when the slow
     part is not stationary noise but a transient, a step, a drift or structure that follows a
-    covariate through the run (its power sits in some stretches only). 0 without slow components."""
+    covariate through the run (its power sits in some stretches only). +inf without slow components
+    (nothing to test) or when the stretches are too short."""
     fast = [True] + [False] * (model.flicker_b > 0) + [False] * (model.rrw_k > 0) + [
         t < SLOW_SAMPLES * model.dt_s for _, t in model.gm]
     fast = np.asarray(fast)
     k_slow = int((~fast).sum())
     n = r.shape[0] // parts
     if k_slow == 0 or n < 64:
-        return 0.0
+        return math.inf
     th = _theta(model)
     lr, m = 0.0, 0
     for q in range(parts):

@@ -69,13 +69,15 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
         fixed += _fixed_terms(p, name, axis, nl, ctx)
     found, ow = _select(p, base_terms + fixed, hidden, progress)
-    # the sensor's noise model from what is left; when it is not white, the named causes are tested
-    # again against it (generalised least squares): correlated noise may have passed for structure,
-    # so a term may go, none comes in that white-noise selection did not name
+    # the sensor's noise model from what is left; when it is not white, selection is made again
+    # against it (generalised least squares): correlated noise may have passed for structure, and may
+    # have hidden it. When the correlated part is weak (the noise is mostly white) only the causes
+    # named already are tested again: a small model error is no reason to search anew
     resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
     models = nm.fit_models(p, resid, hidden)
-    named = {t.effect for t in ow.found} | {"rate_random_walk"}
-    hidden = hidden | frozenset(n for n in CANDIDATES if n not in named and not CANDIDATES[n].noise_term)
+    if not any(nm.predictable(m, resid[a]) for a, m in models.items()):
+        named = {t.effect for t in ow.found} | {"rate_random_walk"}
+        hidden = hidden | frozenset(n for n in CANDIDATES if n not in named and not CANDIDATES[n].noise_term)
     for _ in range(NOISE_ROUNDS):
         whiten = {a: m.whitener() for a, m in models.items() if not m.is_white}
         if not whiten and not p.whiten:
@@ -217,6 +219,8 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             den = sum(float(np.dot(term.built.offsets[a], term.built.offsets[a])) for a in touched)
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
+        if term.effect == "warmup_transient":
+            ev["tau_s_interval"] = _tau_interval(p, s.final, term)
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
     for ln in p.lines:  # coherent lines above the bins' reach, fitted on the raw samples
         findings.append(Finding("periodic", ln.axis, {"amplitude_dps": ln.amplitude_dps, "frequency_hz": ln.frequency_hz,
@@ -234,6 +238,32 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
         base_model=raw, fitted_baseline=_fitted_baseline(p, s), rounds=s.rounds, dropped=s.dropped,
         fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, unexplained=ow.unexplained,
         band_s=p.blocks.length / p.fs, noise=noise_section, _internal=(p, s))
+
+
+TAU_CHI2 = 3.84
+"""χ²₁ at 95 %: the warm-up τ interval is where the whole-data fit is within this of the best."""
+
+
+def _tau_interval(p: Prepared, final: Any, term: Term) -> list[float]:
+    """[low, high] (s): the warm-up time constants whose whole-data fit, the other terms as found,
+    lies within :data:`TAU_CHI2` of the best in units of the residual's variance times its inflation
+    φ (the data's correlated noise widens it). ``high`` at the top of the grid: the data do not bound
+    τ from above."""
+    from bench.analysis.diagnose.engine import _full_sse, inflation
+
+    cand = CANDIDATES[term.effect]
+    reduced = build_state(p, [t for t in final.terms if t is not term])
+    ctx = reduced.context()
+    a = term.axis
+    grid = sorted({g["tau_s"] for g in cand.grid(p, a, ctx)})
+    taus = np.geomspace(grid[0], grid[-1], 48)
+    w = {a: 1.0 / max(final.axes[a].mse, 1e-30)}
+    sse = np.array([_full_sse(p, reduced, cand.build(p, a, {"tau_s": float(t)}, ctx), w) for t in taus])
+    st = final.axes[a]
+    phi = inflation({a: st.fit.sse_block}, {a: st.fit.sum_block}, w)
+    ok = (sse - sse.min()) / phi <= TAU_CHI2
+    best = float(term.nl["tau_s"])
+    return [float(min(taus[ok].min(), best)), float(max(taus[ok].max(), best))]
 
 
 def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:

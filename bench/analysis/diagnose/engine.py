@@ -342,8 +342,9 @@ class Evaluation:
         return self.resolved and material(self.d_ic_raw, self.gain, self.gain_band, self.band_t)
 
     def row(self) -> dict[str, Any]:
-        return {"effect": self.cand.name, "axis": self.axis, "d_ic": self.d_ic, "t": self.t, "gain": self.gain,
-                "gain_band": self.gain_band, "band_t": self.band_t, "rms_before": self.rms_before, "rms_after": self.rms_after,
+        return {"effect": self.cand.name, "axis": self.axis, "d_ic": self.d_ic, "t": self.t,
+                "gain": 1.0 / (1.0 - self.gain) if self.gain < 1 else float("inf"),
+                "gain_band": 1.0 / (1.0 - self.gain_band) if self.gain_band < 1 else float("inf"), "band_t": self.band_t, "rms_before": self.rms_before, "rms_after": self.rms_after,
                 "band_before": self.band_before, "band_after": self.band_after, "df": self.df, "phi": self.phi,
                 "d_ic_raw": self.d_ic_raw, "resolved": self.resolved, "acceptable": self.acceptable,
                 "nl": dict(self.nl_full)}

@@ -86,6 +86,18 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
     return out
 
 
+PREDICTABLE = 1.5
+"""The correlated part is strong when the residual's variance is at least this many times the
+model's one-step prediction error (the innovations): selection is then made anew against it."""
+
+
+def predictable(m: NoiseModel, r: np.ndarray) -> bool:
+    """Whether the noise model predicts a material part of the residual ``r`` (:data:`PREDICTABLE`)."""
+    if m.is_white:
+        return False
+    return float(np.var(r)) >= PREDICTABLE * m.whitener().innovation_var
+
+
 def same_structure(old: dict[str, NoiseModel], new: dict[str, NoiseModel]) -> bool:
     """Whether two sets of models have the same components per axis and whitening that differs little
     (each variance within a factor 2)."""

@@ -165,6 +165,12 @@ class OpenWorld:
     excess: dict[str, Excess]
 
 
+def ratio(drop: float) -> float:
+    """A relative drop of an RMS (1 − after/before) as the ratio before/after, the one meaning of
+    ``gain`` in the output (findings and unexplained alike)."""
+    return 1.0 / (1.0 - drop) if drop < 1.0 else float("inf")
+
+
 def _without(found: list[Term], term: Term) -> list[Term]:
     return [t for t in found if t is not term]
 
@@ -286,7 +292,8 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
             size = math.sqrt(max(e.rms_before ** 2 - e.rms_after ** 2, 0.0))
             band = math.sqrt(max(e.band_before ** 2 - e.band_after ** 2, 0.0))
             item = {"against": PROBES[e.cand.name].where, "probe": e.cand.name.split(":", 1)[1],
-                    "rms_dps": size, "band_rms_dps": band, "gain": e.gain, "gain_band": e.gain_band, "d_ic": e.d_ic}
+                    "rms_dps": size, "band_rms_dps": band, "gain": ratio(e.gain), "gain_band": ratio(e.gain_band),
+                    "d_ic": e.d_ic}
             if "frequency_hz" in e.nl_full:
                 item["frequency_hz"] = float(e.nl_full["frequency_hz"])
             where.append(item)
