@@ -75,9 +75,11 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     # named already are tested again: a small model error is no reason to search anew
     resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
     models = nm.fit_models(p, resid, hidden)
+    # against a noise model the slow noise is the model's: no catch-all random walk in the search
+    search_hidden = hidden | {"rate_random_walk"}
     if not any(nm.predictable(m, resid[a]) for a, m in models.items()):
-        named = {t.effect for t in ow.found} | {"rate_random_walk"}
-        hidden = hidden | frozenset(n for n in CANDIDATES if n not in named and not CANDIDATES[n].noise_term)
+        named = {t.effect for t in ow.found}
+        search_hidden |= frozenset(n for n in CANDIDATES if n not in named and not CANDIDATES[n].noise_term)
     for _ in range(NOISE_ROUNDS):
         whiten = {a: m.whitener() for a, m in models.items() if not m.is_white}
         if not whiten and not p.whiten:
@@ -86,7 +88,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
             progress("selecting again against the noise model ("
                      + "; ".join(f"{a}: {m.describe()}" for a, m in models.items()) + ")")
         p.whiten = whiten
-        found, ow = _select(p, base_terms + fixed, hidden, progress)
+        found, ow = _select(p, base_terms + fixed, search_hidden, progress)
         resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
         again = nm.fit_models(p, resid, hidden)
         stable = nm.same_structure(models, again)

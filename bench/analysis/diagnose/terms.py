@@ -371,6 +371,7 @@ RATE_SIGN_DPS = 0.05
 
 class ScaleFactorTempco(Candidate):
     name = "scale_factor_tempco"
+    family = "rate_scale"
 
     def missing(self, p):
         out = [] if p.ref is not None else ["ref_rate_*_dps"]
@@ -808,6 +809,37 @@ class PressureProbe(Probe):
         return Built(cols={axis: z}) if z is not None else Built()
 
 
+class RateScaleProbe(Probe):
+    """A scale factor that is any smooth function of temperature and of pressure: ω·hats(T) and
+    ω·hats(log p) on the axis' reference rate. It imitates a linear scale-factor tempco and finds a
+    scale factor that changes with the vacuum, which no vocabulary term names."""
+
+    name = "probe:rate_scale"
+    where = "scale factor against temperature and pressure"
+    KNOTS = 6
+
+    def candidate_axes(self, p):
+        if p.temp is None and p.pressure is None:
+            return []
+        return [a for a in p.axes if p.rate_excited(a)]
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            w = p.ref_axis(axis)[:, None]
+            parts = []
+            if p.temp is not None and _temp_range(p) >= 2.0:
+                h = _Hats.columns(p.temp, self.KNOTS)
+                if h is not None:
+                    parts.append(np.column_stack([np.ones(p.n), h]) * w)
+            if p.pressure is not None and np.ptp(np.log10(p.pressure)) >= 1.0:
+                h = _Hats.columns(np.log10(p.pressure), self.KNOTS)
+                if h is not None:
+                    parts.append(h * w)
+            return np.column_stack(parts) if parts else None
+        z = _cached(p, ("hats_rate_scale", axis), cols)
+        return Built(cols={axis: z}) if z is not None else Built()
+
+
 class SpectrumProbe(Periodic):
     """A spectral line: a sinusoid at the residual's highest periodogram peaks."""
 
@@ -885,9 +917,9 @@ class AngleRateProbe(GearEccentricity):
 
 PROBES: dict[str, Candidate] = {c.name: c for c in (
     TimeProbe(), RateProbe(), TemperatureDirectionProbe(), PressureProbe(), SpectrumProbe(), SpecificForceProbe(),
-    RateDerivativeProbe(), AngleProbe(), AngleRateProbe())}
+    RateDerivativeProbe(), AngleProbe(), AngleRateProbe(), RateScaleProbe())}
 """Generic probes, evaluated after selection like candidates: an acceptable one is structure left
 unexplained; ``"time"`` and ``"rate"`` also check the specific evidence of the named terms."""
 FAMILY_PROBE = {"time": "probe:time", "rate": "probe:rate", "specific_force": "probe:specific_force",
-                "spectrum": "probe:spectrum", "angle_rate": "probe:angle_rate"}
+                "spectrum": "probe:spectrum", "angle_rate": "probe:angle_rate", "rate_scale": "probe:rate_scale"}
 """A candidate's ``family`` -> the probe its specific evidence is checked against."""
