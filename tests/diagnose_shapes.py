@@ -115,14 +115,40 @@ def extra(entries: list[dict], background_noise: np.ndarray | None = None):
 
 # ---- real backgrounds ------------------------------------------------------------------------------
 @lru_cache(maxsize=2)
-def _stretches(name: str) -> tuple[np.ndarray, ...]:
-    """The real log's gyro at rest (deg/s, 1 Hz), one (n, 3) array per static stretch, mean removed."""
+def _log(name: str):
     from bench.analysis.dataset import load_dataset
-    from bench.analysis.diagnose.data import motion_rows
     from tests.realdata import real_log
 
     mapping = S5_MAP if name == "s5" else CATS_MAP
-    ds = load_dataset(real_log("samsung_galaxy_s5.nc" if name == "s5" else "cats_temperature_calib.nc"), mapping=mapping)
+    return load_dataset(real_log("samsung_galaxy_s5.nc" if name == "s5" else "cats_temperature_calib.nc"), mapping=mapping)
+
+
+def static_datasets(name: str) -> list:
+    """Every static stretch of the real log (at least an hour) as a Dataset of its own rows, every
+    channel it has (the CATS tag's temperature too), time from 0."""
+    from bench.analysis.dataset import Dataset
+    from bench.analysis.diagnose.data import motion_rows
+
+    ds = _log(name)
+    t = ds["time_s"]
+    fs = 1.0 / float(np.median(np.diff(t)))
+    moving = motion_rows(t, [ds[f"gyro_{a}_dps"] for a in "xyz"], [ds[f"accel_{a}_g"] for a in "xyz"], fs)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], (~moving).astype(np.int8), [0]])))
+    out = []
+    for lo, hi in zip(edges[::2], edges[1::2]):
+        if (hi - lo) / fs >= 3600:
+            sub = ds.select(np.arange(lo, hi))
+            sub.columns["time_s"] = sub.columns["time_s"] - sub.columns["time_s"][0]
+            out.append(Dataset(sub.columns, dict(ds.meta), f"{ds.source} static rows {lo}-{hi}"))
+    return out
+
+
+@lru_cache(maxsize=2)
+def _stretches(name: str) -> tuple[np.ndarray, ...]:
+    """The real log's gyro at rest (deg/s, 1 Hz), one (n, 3) array per static stretch, mean removed."""
+    from bench.analysis.diagnose.data import motion_rows
+
+    ds = _log(name)
     t = ds["time_s"]
     g = np.stack([ds[f"gyro_{a}_dps"] for a in "xyz"], axis=1)
     fs = 1.0 / float(np.median(np.diff(t)))

@@ -173,15 +173,36 @@ def test_rotating_table_keeps_the_angle_resolution():
     np.testing.assert_allclose(np.degrees(d), w * span, rtol=1e-6)
 
 
-def test_a_spectral_line_above_the_bins_shortens_them():
+def test_a_coherent_line_above_the_bins_is_fitted_on_the_raw_samples():
+    """A 5-Hz line on 100-Hz static data no longer turns binning off (the 1e6-row case took 11.6 GB):
+    it is fitted on the raw samples (frequency, amplitude, phase), removed before the 5-s bins, and
+    reported as a periodic finding; narrow-band noise at the same frequency is not coherent and is
+    left to the bins."""
+    from bench.analysis.diagnose import diagnose
     from bench.analysis.diagnose.data import prepare
 
     n, fs = 150_000, 100.0
     ds = _dataset(n, fs)
-    ds.columns["gyro_z_dps"] = ds["gyro_z_dps"] + 0.01 * np.sin(2 * np.pi * 5.0 * ds["time_s"])
+    ds.columns["gyro_z_dps"] = ds["gyro_z_dps"] + 0.01 * np.sin(2 * np.pi * 5.0 * ds["time_s"] + 0.4)
     p = prepare(ds)
-    assert p.bin_rows in (4, 5)  # 4 bins per period of the 5-Hz line (0.05 s), frequency within its resolution
-    assert "spectral line at 5" in p.rows_line()
+    assert p.bin_rows == 500
+    (line,) = p.lines
+    assert line.axis == "z" and line.frequency_hz == pytest.approx(5.0, abs=2e-4)
+    assert line.amplitude_dps == pytest.approx(0.01, rel=0.05)
+    assert "spectral line at 5 Hz on z" in p.rows_line() and "removed before binning" in p.rows_line()
+    assert float(np.std(p.gyro["z"])) == pytest.approx(0.02 / np.sqrt(500), rel=0.2)  # nothing of it left
+    (f,) = [f for f in diagnose(ds).findings if f.effect == "periodic"]
+    assert f.axis == "z" and f.params["frequency_hz"] == pytest.approx(5.0, abs=2e-4)
+    # the same power as narrow-band noise (a 5-Hz resonance driven by noise): not coherent, not fitted
+    rng = np.random.default_rng(3)
+    from scipy.signal import lfilter
+
+    r = 0.995
+    w0 = 2 * np.pi * 5.0 / fs
+    ring = lfilter([1.0], [1.0, -2 * r * np.cos(w0), r * r], rng.standard_normal(n))
+    ds2 = _dataset(n, fs)
+    ds2.columns["gyro_z_dps"] = ds2["gyro_z_dps"] + 0.007 * ring / np.std(ring)
+    assert prepare(ds2).lines == []
 
 
 # ---- progress (bench/analysis/progress.py) ------------------------------------------------------
