@@ -463,7 +463,7 @@ def test_json_shape_summary_and_report(tmp_path):
     assert "baseline residual" in line and "missing effect pressure_bias" in line and "held-out" in line and "Torr" in line
     out = write_report(result, session.dataset, tmp_path / "r.html")
     html = out.read_text()
-    for section in ("Findings", "Unexplained", "Held-out residuals", "Spectra", "Correlation with covariates",
+    for section in ("Findings", "Noise model", "Unexplained", "Held-out residuals", "Spectra", "Correlation with covariates",
                     "Allan deviation", "Candidates"):
         assert section in html
     assert html.count("data:image/png;base64") >= 5
