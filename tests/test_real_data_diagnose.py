@@ -69,6 +69,7 @@ def test_phone_at_rest_is_noise_with_its_read_outs(real_log):
     assert set(doc["noise"]) == {"x", "y", "z"} and "model" in doc["noise"]["x"]
 
 
+@pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="the slow part on x and z of this 12.6-h stretch fails the stationarity check "
                    "(the tag's wander follows its temperature history a little): unexplained against time "
                    "(docs/diagnose.md, known limits)")
@@ -134,7 +135,8 @@ def check_named(bg: str, names: list[str], seed: int) -> None:
     assert result.unexplained == [], (bg, entries, result.unexplained)
 
 
-CI_CASES = [("s5", "hysteresis"), ("cats", "pressure_bias"), ("cats", "gear_eccentricity")]
+CI_CASES = [("cats", "pressure_bias"), ("cats", "gear_eccentricity"), ("cats", "thermal_lag")]
+"""A representative set for CI (the S5 background costs 30-60 s a case on the shared machine: slow suite)."""
 
 
 @pytest.mark.parametrize("bg,name", CI_CASES, ids=[f"{b}-{n}" for b, n in CI_CASES])
