@@ -84,7 +84,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "(default: real instruments unless the config says 'mode: sim')")
     r.add_argument("--realtime", action="store_true", help="with --sim: run at wall-clock pace (default: virtual time, hours in seconds)")
     r.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run files go (default: runs/)")
-    r.add_argument("--operator", default=None, help="operator name recorded in the run file (default: login name)")
+    r.add_argument("--operator", metavar="NAME", default=None,
+                   help="who runs it, recorded in the run file with where it came from (default: the login name; one of the "
+                        "lab config's 'operators:' when it lists them)")
     r.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help=PARAM_HELP)
     r.add_argument("--answers", type=Path, default=None,
                    help="YAML file answering the procedure's operator prompts (id: yes) (default: ask on the terminal)")
@@ -374,6 +376,9 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     args.sim = args.sim or config.mode == "sim"
     if args.realtime and not args.sim:
         raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
+    from bench import operators
+
+    who = operators.resolve(args.operator, config.operators, origin=operators.cli_origin(), allowed_at=config.operators_location)
     operator = Operator.from_file(args.answers, Operator.terminal()) if args.answers else Operator(None, Operator.terminal())
     unanswerable = [s for s in procedure.steps if (s.type == "prompt" or (s.type == "vibrate" and not args.sim))
                     and not operator.can_answer(s.params.get("id") or s.name, args.sim)]
@@ -402,10 +407,11 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
         plan_faults(fault_spec, {n: config.instruments[n].driver for n in procedure.instruments}, procedure.estimated_duration_s())
     check_destination(args.runs_dir, run_file_bytes(procedure))
 
+    progress = RichProgress(console, dry_run=args.sim)
     session = start_run(procedure, config, procedure_path=args.procedure, config_path=args.config, runs_dir=args.runs_dir,
-                        sim=args.sim, realtime=args.realtime, operator=operator, progress=RichProgress(console),
-                        operator_name=args.operator, fault_spec=fault_spec, identity=identity, overdue=overdue,
-                        accept_overdue=args.accept_overdue_calibration, catalog=run_catalog(args.catalog, config),
+                        sim=args.sim, realtime=args.realtime, operator=operator, progress=progress,
+                        operator_name=who.name, operator_origin=who.origin, fault_spec=fault_spec, identity=identity,
+                        overdue=overdue, accept_overdue=args.accept_overdue_calibration, catalog=run_catalog(args.catalog, config),
                         startup=StartupSignals.current)
     runner, lab, recorder = session.runner, session.lab, session.recorder
     state = {"signals": 0}
@@ -414,6 +420,7 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     # terminal library in the middle of rendering (or of a lazy import) and break it.
     def on_pause(signum: int, _frame) -> None:
         runner.toggle_pause()
+        progress.paused = runner.paused
         runner.notices.append(f"[bold yellow]{'pause' if runner.paused else 'resume'} requested ({signal.Signals(signum).name}); "
                               f"{'send it again to resume' if runner.paused else 'continuing'}[/]")
 

@@ -39,14 +39,15 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
               sim: bool, realtime: bool, operator: Operator, progress: Any, operator_name: str | None = None,
               fault_spec: Any = None, identity: RunIdentity | None = None,
               overdue: Sequence[OverdueCalibration] = (), accept_overdue: bool = False,
-              catalog: str | None = None, startup: StartupSignals | None = None) -> RunSession:
+              catalog: str | None = None, startup: StartupSignals | None = None, operator_origin: str = "") -> RunSession:
     """Create the run file, open the lab (recording every byte from the first one: replay answers
     it), and build the runner; with ``fault_spec`` (a parsed ``--inject-faults``) the progress sink is
     wrapped by a :class:`bench.faults.FaultInjector`. On failure, or on any ``BaseException``
     (Ctrl-C …), everything opened so far is closed and the run file is finalised as aborted with the
     reason; the exception propagates.
 
-    ``identity``: the unit under test and station, recorded as root attributes. ``overdue``: the
+    ``identity``: the unit under test and station, recorded as root attributes; ``operator_origin``
+    where ``operator_name`` came from (:mod:`bench.operators`), recorded beside it. ``overdue``: the
     run's instruments past their calibration due date, confirmed (``accept_overdue``, else through
     ``operator``) and recorded before any instrument is opened; a "no" finalises the file as
     aborted and raises :class:`bench.runner.unit_identity.CalibrationDeclined`.
@@ -78,7 +79,8 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
             software_version=__version__,
             flush_interval_s=config.flush_interval_s,
             **({"operator": operator_name} if operator_name else {}),
-            identity=root_attrs(identity) if identity is not None else None,
+            identity={**(root_attrs(identity) if identity is not None else {}),
+                      **({layout.ATTR_OPERATOR_ORIGIN: operator_origin} if operator_origin else {})} or None,
         )
     hook: RunCatalogHook | None = None
     doing = "cataloguing the run"
@@ -103,6 +105,7 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
             faults = plan_faults(fault_spec, lab.kinds, procedure.estimated_duration_s())
             progress = FaultInjector(progress, faults, lab, recorder)
         runner = Runner(procedure, lab, recorder, progress, operator, declared=declared_identity(config, procedure.instruments))
+        runner.operator_name = operator_name or login_name()
         guard.hand_over()
     except BaseException as exc:
         with guard.held():  # the run ends before its first step: the file is finalised as aborted, its row updated
