@@ -12,7 +12,7 @@ from bench.config import LabConfig
 from bench.errors import InputError
 from bench.identity import RunIdentity
 from bench.catalog.hooks import RunCatalogHook
-from bench.lab import Lab, open_lab
+from bench.lab import InstrumentOpenError, Lab, open_lab
 from bench.procedure import Procedure
 from bench.record import RunRecorder, layout
 from bench.record.skeleton import login_name
@@ -88,13 +88,13 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
         guard.raise_pending()
         doing = "recording the config's files"
         recorder.event(layout.EVENT_CONFIG_SOURCES, "runner", config.name, t_s=0.0, data=config_sources_json(config))
-        doing = "cataloguing the run"
-        # the run's row, `running` (``catalog``: URL or file, default runs_dir/catalog.sqlite); never raises
-        hook = RunCatalogHook.run_started(recorder.path, runs_dir=runs_dir, catalog=catalog)
         doing = "confirming overdue calibrations"
         confirm_overdue(overdue, operator, accept_overdue, recorder, operator_name or login_name())
         doing = "opening the instruments"
         lab = open_lab(config, procedure.instruments, sim=sim, realtime=realtime, on_traffic=traffic)
+        doing = "cataloguing the run"
+        # the run's row, `running` (``catalog``: URL or file, default runs_dir/catalog.sqlite); never raises
+        hook = RunCatalogHook.run_started(recorder.path, runs_dir=runs_dir, catalog=catalog)
         doing = "preparing the run"
         recorder.event("lab_open", "runner", "instruments open", t_s=lab.clock.now())
         faults: list[Any] = []
@@ -115,8 +115,12 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
                 except Exception:  # noqa: BLE001 - the file must still be finalised; the first failure is reported
                     pass
             recorder.close("aborted", _startup_abort_reason(exc, doing))
-            if hook is not None:
-                hook.run_ended()
+            if isinstance(exc, InstrumentOpenError):
+                # the run never started (nothing but identification was sent): no run file is
+                # kept and it was never catalogued; the error names the instrument and what to do
+                _discard(recorder.path)
+            else:  # an aborted start-up (declined calibration, a stop signal…) is on record
+                (hook or RunCatalogHook(recorder.path, runs_dir, catalog)).run_ended()
         if isinstance(exc, StoppedDuringStartup):
             exc.run_file = recorder.path
         raise
@@ -144,3 +148,11 @@ def _startup_abort_reason(exc: BaseException, doing: str) -> str:
     if doing == "planning the injected faults" and isinstance(exc, InputError):
         return "bad --inject-faults spec"
     return f"start-up failed while {doing}: {exc or type(exc).__name__}"
+
+
+def _discard(path: Path) -> None:
+    """Remove the run file of a run that never started (an instrument could not be opened)."""
+    try:
+        Path(path).unlink()
+    except OSError:
+        pass
