@@ -63,20 +63,20 @@ def cmd_validate(args: argparse.Namespace, console: Console) -> int:
 
 
 DURATION_FIELDS = ("duration", "settle", "hold", "timeout", "dwell")
-"""Step fields that are durations (s): shown as ``45 s``, ``10 min``, ``12 h``."""
+"""Step fields that are durations, shown in s (the estimate columns give h:mm:ss)."""
 FIELD_UNITS = {"set_point": "degC", "ramp": "degC/min", "rate": "deg/s", "accel": "deg/s^2", "angle": "deg", "pressure": "Torr",
                "odr": "Hz"}
 """Units of the other numeric step fields (a band or a check limit takes its signal's units)."""
 
 
 def describe_parts(step, kinds: dict[str, str] | None = None) -> list[str]:
-    """The step's fields, each as ``name value unit`` (:mod:`bench.quantity_format`): durations as
-    ``10 min``, temperatures in degC, rates in deg/s, angles in deg, pressures in Torr, data rates in
+    """The step's fields, each as ``name value unit`` (:mod:`bench.quantity_format`): durations in
+    s, temperatures in degC, rates in deg/s, angles in deg, pressures in Torr, data rates in
     Hz; a band in its signal's units; a check's limits in the check's display units (a
     scale-factor error limit of 0.05 reads ``-5 .. 5 %``). ``kinds``: instrument -> driver (for
     the units of signals; default the standard instrument names)."""
     from bench.procedure.signals import DEFAULT_KINDS, parse_signal, signal_units
-    from bench.quantity_format import fmt_quantity, fmt_range, fmt_seconds
+    from bench.quantity_format import fmt_quantity, fmt_range
     from bench.record.checks import display_value
 
     def units_of(signal: str) -> str:
@@ -111,7 +111,7 @@ def describe_parts(step, kinds: dict[str, str] | None = None) -> list[str]:
         if isinstance(v, bool):
             parts.append(f"{k} {'yes' if v else 'no'}")
         elif isinstance(v, (int, float)) and k in DURATION_FIELDS:
-            parts.append(f"{k} {fmt_seconds(v)}")
+            parts.append(f"{k} {fmt_quantity(v, 's', 6)}")
         elif isinstance(v, (int, float)) and k == "band":
             parts.append(f"{k} {fmt_quantity(v, signal_u if step.type == 'wait_until_stable' else 'degC')}")
         elif isinstance(v, float) or (isinstance(v, int) and k in FIELD_UNITS):
