@@ -219,6 +219,9 @@ def build_parser() -> argparse.ArgumentParser:
     from bench.cli_web import add_serve_parser
 
     add_serve_parser(sub)
+    from bench.cli_unit import add_unit_parser
+
+    add_unit_parser(sub)
 
     sk = sub.add_parser(
         "soak", help="run the procedure library back to back on the simulated lab with random faults",
@@ -316,6 +319,10 @@ def main(argv: list[str] | None = None) -> int:
             from bench.cli_web import cmd_serve
 
             return cmd_serve(args, console)
+        if args.command == "unit":
+            from bench.cli_unit import cmd_unit
+
+            return cmd_unit(args, console)
         if args.command in ("runs", "catalog"):
             from bench.cli_catalog import cmd_catalog
 

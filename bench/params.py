@@ -4,7 +4,10 @@ parameter's command-line override (``-p NAME=VALUE``) against its default."""
 from __future__ import annotations
 
 from dataclasses import fields
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.errors import InputError
 
 T = TypeVar("T")
 
