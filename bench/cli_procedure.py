@@ -132,7 +132,7 @@ def cmd_plan(args: argparse.Namespace, console: Console) -> int:
     procedure, config = load_checked(args.procedure, args.config, parse_params(args.param))
     est = procedure.estimate(lab_model(config))
     starts, t = est.starts_s(), est.total_s
-    fixed = [len(str(len(procedure.steps))), max((len(s.path) for s in procedure.steps), default=4),
+    fixed = [len(str(len(procedure.steps))), max([len(PLAN_HEADERS[1])] + [len(s.path) for s in procedure.steps]),
              max(longest_word(PLAN_HEADERS[3]), len(fmt_duration(t)) + 2 * est.lower_bound), max(longest_word(PLAN_HEADERS[4]), len(fmt_duration(t)))]
     room = console.width - table_overhead(len(PLAN_HEADERS)) - sum(fixed)  # what the step column has at most
     rows = []

@@ -297,7 +297,7 @@ def create_app(station: Station) -> Starlette:
         person = acting_person(station, body, required=False)
         who = origin(request)
         live.runner.operator_event("stop", who, "stop requested from the web station", operator=person)
-        live.runner.request_abort(f"operator stop from the web station ({f'{person}, ' if person else ''}{who})")
+        live.runner.request_abort(f"operator stop from the web station ({who})" + (f" by {person}" if person else ""))
         return _json({"ok": True})
 
     routes = [

@@ -102,8 +102,8 @@ async function loadRuns(f) {
   const rows = d.runs.map((r) => `<tr class="run-row${r.evidence ? "" : " not-evidence"}" data-id="${esc(r.id)}" data-unit="${esc(r.unit_serial)}"
       data-status="${esc(r.status)}" data-mode="${esc(r.mode)}">
     <td class="nowrap">${esc((r.started_utc || "").replace("T", " ").replace(/:\d\dZ$/, ""))}</td>
+    <td class="wrap">${r.id ? `<a class="run-link" href="/run?id=${encodeURIComponent(r.id)}">${esc(r.procedure_name)}</a>` : esc(r.procedure_name)}</td>
     <td>${r.unit_serial ? `<a class="unit-link" href="/unit?serial=${encodeURIComponent(r.unit_serial)}">${esc(r.unit_serial)}</a>` : ""}</td>
-    <td class="wrap">${r.id ? `<a href="/run?id=${encodeURIComponent(r.id)}">${esc(r.procedure_name)}</a>` : esc(r.procedure_name)}</td>
     <td>${modeBadge(r.mode_word, r.evidence)}</td>
     <td>${badge(r.status)}${r.waiting_for ? `<div class="muted">${esc(r.waiting_for)}</div>` : ""}</td>
     <td>${r.verdict ? badge(r.verdict_text, r.evidence ? "" : "not-evidence") : ""}</td><td class="num">${esc(r.run_time_text)}</td>
@@ -112,7 +112,7 @@ async function loadRuns(f) {
     <td class="wrap note">${esc(r.first_failed_check || r.reason || "")}</td></tr>`).join("");
   const dry = d.runs.filter((r) => !r.evidence).length;
   box.innerHTML = `<p class="muted" id="runs-count">${d.runs.length} run(s), newest first${dry ? `; <b>${dry} DRY-RUN(s) or replays: not acceptance evidence</b>` : ""}</p>
-    <div class="table-box"><table id="runs-table"><thead><tr><th>start UTC</th><th>unit</th><th>procedure</th><th>mode</th><th>status</th><th>verdict</th>
+    <div class="table-box"><table id="runs-table"><thead><tr><th>start UTC</th><th>procedure</th><th>unit</th><th>mode</th><th>status</th><th>verdict</th>
     <th>run time</th><th>station / operator</th><th>p min Torr</th><th>T degC</th><th>note</th></tr></thead><tbody>${rows}</tbody></table></div>`;
 }
 
