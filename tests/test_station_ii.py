@@ -366,6 +366,21 @@ def test_help_examples_use_files_that_exist_or_say_how_to_make_them():
                 assert (ROOT / path).exists(), f"{name}: {path}"
 
 
+def test_the_readme_opens_with_the_technicians_page_on_files_that_exist():
+    readme = (ROOT / "README.md").read_text()
+    first = readme[readme.index("## At the bench"):readme.index("## For developers")]
+    assert readme.index("## At the bench") < min(readme.index(w) for w in ("SWMR", "Fletcher", "PDO"))
+    for word in ("SWMR", "Fletcher", "PDO", "HDF5"):
+        assert word not in first, word
+    for verb in ("**Run**", "**Answer.**", "**Watch**", "**Pause or stop.**", "**Review**"):
+        assert verb in first, verb
+    commands = [line for block in re.findall(r"```sh\n(.*?)```", first, re.S) for line in block.splitlines()]
+    assert commands and "bench lab init -o configs/lab.yaml" in first
+    for line in commands:
+        for path in re.findall(r"(?<![\w/.-])((?:configs|procedures)/[\w./-]+\.yaml)", line.split("#")[0]):
+            assert path == "configs/lab.yaml" or (ROOT / path).exists(), line
+
+
 # ---- bench unit -----------------------------------------------------------------------------------------
 def test_bench_unit_history_at_80_columns(unit_runs, monkeypatch, capsys):
     code, out, _ = _cli(monkeypatch, capsys, "unit", "SN12", "--runs-dir", str(unit_runs))
