@@ -30,10 +30,10 @@ def parse_params(items: list[str] | None) -> dict[str, str]:
 
 
 def fmt_duration(seconds: float) -> str:
-    seconds = max(0.0, seconds)
-    h, rem = divmod(int(round(seconds)), 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}:{m:02d}:{s:02d}"
+    """A duration (s) as ``h:mm:ss`` (:func:`bench.quantity_format.fmt_hms`; never negative)."""
+    from bench.quantity_format import fmt_hms
+
+    return fmt_hms(max(0.0, seconds))
 
 
 def fmt_estimate(e: "StepEstimate") -> str:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from bench.errors import InputError, Location
-from bench.identity import identity_text_problem
+from bench.identity import check_identity_text
 
 CLI = "cli"
 WEB = "web"
@@ -65,14 +65,10 @@ def web_origin(peer: str) -> str:
 
 
 def check_name(value: object, field: str, location: Location | None = None) -> str:
-    """An operator name as given (printable, at most 64 characters, no surrounding spaces), else a
-    located :class:`InputError` naming ``field``."""
-    if not isinstance(value, str):
-        raise InputError(f"expected a name such as alice, got {type(value).__name__}", location, field)
-    problem = identity_text_problem(value)
-    if problem:
-        raise InputError(f"operator name {value[:70]!r} {problem}", location, field)
-    return value
+    """An operator name as given (printable, at most 64 characters, no surrounding spaces: the
+    rules of every identity text, :func:`bench.identity.check_identity_text`), else a located
+    :class:`InputError` naming ``field``."""
+    return check_identity_text(value, location, field)
 
 
 def resolve(name: str | None, allowed: Sequence[str] = (), *, origin: str, field: str = "--operator",

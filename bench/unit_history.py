@@ -51,8 +51,20 @@ FIGURE_EVENT_KINDS = ("check", "step_start", "step_end", "procedure")
 """The only events read from each run file (never the traffic, never the streams)."""
 
 
+class _Mode:
+    """What has a ``mode`` (a run, a value from a run) says whether it is acceptance evidence."""
+
+    mode: str
+
+    @property
+    def evidence(self) -> bool:
+        from bench.run_mode import is_evidence
+
+        return is_evidence(self.mode)
+
+
 @dataclass
-class RunEntry:
+class RunEntry(_Mode):
     """One run of the unit: the catalogue row's facts (``path`` absolute), ``run_id`` (the web
     station's id, relative to the runs directory, None outside it)."""
 
@@ -69,15 +81,9 @@ class RunEntry:
     part: str
     revision: str
 
-    @property
-    def evidence(self) -> bool:
-        from bench.run_mode import is_evidence
-
-        return is_evidence(self.mode)
-
 
 @dataclass
-class Point:
+class Point(_Mode):
     """One value of a figure: from check ``check`` of the run at ``path``, started ``when`` (UTC)."""
 
     when: datetime | None
@@ -88,12 +94,6 @@ class Point:
     path: str
     run_id: str | None
     outcome: str
-
-    @property
-    def evidence(self) -> bool:
-        from bench.run_mode import is_evidence
-
-        return is_evidence(self.mode)
 
 
 @dataclass

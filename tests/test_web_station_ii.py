@@ -16,13 +16,13 @@ import shutil
 import subprocess
 import sys
 import threading
-import time
 
 import h5py
 import pytest
 
 from bench.record import read_run_summary
 from tests.browser import ROOT, TOKEN, Server, launch_browser
+from tests.test_web_station import _until
 
 PROCEDURES = ROOT / "tests" / "data" / "procedures"
 SIM_CONFIG = ROOT / "configs" / "sim.yaml"
@@ -53,16 +53,6 @@ def _page(browser, url: str, viewport=WIDE):
     page.errors = errors
     page.goto(url)
     return page
-
-
-def _until(page, cond, what: str, timeout_s: float = 30.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        page.wait_for_timeout(100)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
 def _drain(fd: int) -> None:

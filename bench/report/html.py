@@ -9,7 +9,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import math
 from dataclasses import dataclass
 from typing import Any, Iterable
 
@@ -18,7 +17,7 @@ import matplotlib
 matplotlib.use("Agg")  # no display on test benches' CI machines; must precede pyplot imports
 import matplotlib.pyplot as plt  # noqa: E402
 
-from bench.quantity_format import fmt_number  # noqa: E402
+from bench.quantity_format import fmt_hms, fmt_number  # noqa: E402
 
 STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;color:#222}
@@ -61,10 +60,7 @@ def fmt(value: Any, digits: int = 4) -> str:
 def hms(seconds: float | None) -> str:
     """A run time or duration ``seconds`` (s) as ``H:MM:SS``, rounded to the second (the report's one
     presentation of run time); ``-`` for None or NaN."""
-    if seconds is None or not math.isfinite(seconds):
-        return "-"
-    s = int(round(seconds))
-    return f"{'-' if s < 0 else ''}{abs(s) // 3600}:{abs(s) // 60 % 60:02d}:{abs(s) % 60:02d}"
+    return fmt_hms(seconds)
 
 
 def table(headers: list[str], rows: Iterable[Iterable[Any]], title: str = "", left: int = 1) -> str:
