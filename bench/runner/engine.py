@@ -142,7 +142,7 @@ class Runner:
         self.notices: list[str] = []
         """Messages from signal handlers, printed by the main loop (a handler must not render: it
         may interrupt the terminal library in the middle of its own work)."""
-        self.operator_events: list[tuple[str, str, str]] = []
+        self.operator_events: list[tuple[str, str, str, str]] = []
         """Operator actions taken elsewhere (:meth:`operator_event`), recorded by the runner's thread."""
         self.handlers: dict[str, Callable[["Runner", Step], tuple[str, str]]] = dict(step_handlers.HANDLERS)
 
