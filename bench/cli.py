@@ -495,7 +495,7 @@ def _print_summary(console: Console, result, path: Path, virtual: bool, mode: st
         st = result.stream_stats.get(name, {})
         faults = [f"{st.get(k, 0):,} {what}" for k, what in (("crc_errors", "CRC errors"), ("dropped_frames", "dropped frames"),
                                                                ("garbage_bytes", "garbage bytes")) if st.get(k, 0)]
-        console.print(f"stream {name}: {rows:,} rows; link: {', '.join(faults) if faults else 'clean'}", markup=False, highlight=False)
+        console.print(f"stream {name}: {rows} rows; link: {', '.join(faults) if faults else 'clean'}", markup=False, highlight=False)
     if result.checks:
         headers, rows = check_rows([check_from_result(c, int(c.get("step", -1)), str(c["outcome"])) for c in result.checks],
                                    evidence=evidence)

@@ -190,7 +190,7 @@ def render_summary(summary: "RunSummary", console: Console, max_events: int = 40
             span = f"{fmt_hms(s.t_start_s)} .. {fmt_hms(s.t_end_s)}" if s.t_start_s is not None and s.t_end_s is not None else "no rows"
             cols = ", ".join(f"{n}{list(s.shapes[n]) if s.shapes.get(n) else ''} ({u})" for n, u in s.columns.items())
             rate = f", {fmt_quantity(s.rate_hz, 'Hz')}" if s.rate_hz is not None else ""
-            rows.append([s.key, f"{s.rows:,} rows{rate}\n{span}", cols])
+            rows.append([s.key, f"{s.rows} rows{rate}\n{span}", cols])
         show(["stream", "rows, run time", "columns (units)"], rows, "Streams", prose=(0, 2))
     if summary.steps:
         show(["#", "step", "type", "outcome", "took", "detail"],

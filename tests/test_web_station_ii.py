@@ -135,6 +135,7 @@ def test_live_run_operator_prompt_pause_stop_units_and_plots(browser, station):
     hold = page.locator(".param-row").filter(has=page.locator("[data-name=hold]"))
     assert page.input_value("[data-name=hold]") == "" and "default 2 h" in hold.inner_text() and "paused and stopped" in hold.inner_text()
     page.uncheck("#s-realtime")  # virtual time: the recordings take no wall time; the prompt and a pause hold it
+    page.fill("[data-name=hold]", "20 h")  # still recording when stopped, however loaded the machine
     page.click("#s-start")
     _until(page, lambda: "operator" in page.inner_text("#s-errors"), "the operator is required")
     page.fill("#s-operator", "alice")

@@ -85,7 +85,7 @@ def prompt(r: "Runner", step: Step) -> tuple[str, str]:
         _record_answer(r, step, {"id": key, "text": text, "answer": answer, "source": source, "operator": person,
                                  "attempt": attempt, "valid": verdict is not None})
         if verdict == "yes":
-            return "done", f"confirmed by {person} ({source})"
+            return "done", f"confirmed ({source})"  # who: the operator event (the wording replays of older runs compare)
         interactive = source not in NON_INTERACTIVE_SOURCES
         if verdict == "no":
             if interactive:

@@ -146,7 +146,7 @@ def run_page(path: Path) -> dict[str, Any]:
         j.update(value_text=check_value(c), limits_text=check_limits(c), what=check_what(c))
     for st in out["steps"]:
         st["duration_text"] = fmt_seconds(st["duration_s"]) if st.get("duration_s") is not None else ""
-    for e in out["events"]["recent"]:
+    for e in out.get("events", {}).get("recent", []):
         e["text"] = event_text(e["kind"], e["source"], e["message"])
         e["t_text"] = fmt_hms(e["t_s"])
     with _open_run(path) as (f, _warnings):
