@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import math
 import re
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -223,22 +225,48 @@ def _better(point: Point, have: LotValue) -> bool:
 _CHANNEL = re.compile(r"^[^.]+\.(?P<column>[^.]+)(?:\.(?P<axis>[xyz]))?$")
 
 
+_CHECKS_CACHE: "OrderedDict[tuple[str, int, int], list[Any]]" = OrderedDict()
+_CHECKS_LOCK = threading.Lock()
+CHECKS_CACHE_FILES = 4096
+"""Run files whose checks are kept in memory between histories (keyed by path, size and mtime: a
+file that changes is read again), so a station showing unit pages reads each file once."""
+
+
+def _checks(path: Path) -> list[Any]:
+    """The checks of the run file at ``path`` (:func:`bench.record.checks.check_results`), read once
+    per version of the file. :class:`InputError` for an unreadable file."""
+    from bench.record import read_run_summary
+    from bench.record.checks import check_results
+
+    st = path.stat()
+    key = (str(path), st.st_size, st.st_mtime_ns)
+    with _CHECKS_LOCK:
+        if key in _CHECKS_CACHE:
+            _CHECKS_CACHE.move_to_end(key)
+            return _CHECKS_CACHE[key]
+    checks = check_results(read_run_summary(path, event_kinds=FIGURE_EVENT_KINDS, traffic=False))
+    with _CHECKS_LOCK:
+        _CHECKS_CACHE[key] = checks
+        while len(_CHECKS_CACHE) > CHECKS_CACHE_FILES:
+            _CHECKS_CACHE.popitem(last=False)
+    return checks
+
+
 def _points(e: RunEntry, notes: list[str]) -> list[tuple[tuple[str, str], str, str, str, str, Point]]:
     """The key-figure points of run ``e``: its checks on sensor channels with a figure statistic."""
-    from bench.record import read_run_summary
-    from bench.record.checks import check_results, display_value
+    from bench.record.checks import display_value
 
     path = Path(e.path)
     if not path.is_file():
         notes.append(f"{path.name}: the run file is not on this computer; its figures are left out")
         return []
     try:
-        summary = read_run_summary(path, event_kinds=FIGURE_EVENT_KINDS, traffic=False)
-    except InputError as exc:
-        notes.append(f"{path.name}: unreadable ({exc.message}); its figures are left out")
+        checks = _checks(path)
+    except (InputError, OSError) as exc:
+        notes.append(f"{path.name}: unreadable ({getattr(exc, 'message', exc)}); its figures are left out")
         return []
     out = []
-    for c in check_results(summary):
+    for c in checks:
         m = _CHANNEL.match(c.signal)
         if c.value is None or not math.isfinite(c.value) or m is None or m.group("column") not in SENSOR_COLUMNS \
                 or c.statistic not in FIGURE_STATISTICS:
