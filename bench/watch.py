@@ -581,10 +581,11 @@ def build(state: WatchState, width: int | None = None, height: int | None = None
     if height is None or _height(full, width) <= height:
         return full
     view = full
-    for k in range(len(state.events), -1, -1):
-        view = _layout(state, width, compact=True, events=k, traffic=False)
-        if _height(view, width) <= height:
-            break
+    for tight in (False, True):  # tight: no table header, the status and step lines one line each
+        for k in range(len(state.events), -1, -1):
+            view = _layout(state, width, compact=True, events=k, traffic=False, tight=tight)
+            if _height(view, width) <= height:
+                return view
     return view
 
 
@@ -602,7 +603,7 @@ class _NullFile:
         pass
 
 
-def _layout(state: WatchState, width: int, *, compact: bool, events: int, traffic: bool) -> RenderableType:
+def _layout(state: WatchState, width: int, *, compact: bool, events: int, traffic: bool, tight: bool = False) -> RenderableType:
     parts: list[RenderableType] = []
     loud = banner(state.mode)
     if loud:
@@ -618,12 +619,16 @@ def _layout(state: WatchState, width: int, *, compact: bool, events: int, traffi
     detail = Text(state.status_detail, style={STATUS_STALE: "red", layout.STATUS_WAITING: "bold magenta"}.get(state.status, "dim"))
     if state.abort_reason:
         detail.append(f"   abort reason: {state.abort_reason}", style="red")
-    parts += [head, detail, _step_line(state)]
+    step = _step_line(state)
+    if tight:
+        for line in (head, detail, step):
+            line.no_wrap, line.overflow = True, "ellipsis"
+    parts += [head, detail, step]
     for w in state.warnings:
         parts.append(Text(f"warning: {w}", style="yellow"))
     if state.read_error:
         parts.append(Text(f"refresh failed, showing the last good read: {state.read_error}", style="yellow"))
-    parts.extend(_readings(state, width - PANEL_CHROME, compact=compact))
+    parts.extend(_readings(state, width - PANEL_CHROME, compact=compact, header=not tight))
     if events > 0 or not compact:
         parts.append(_events_table(state, events, one_line=compact, traffic_below=traffic and bool(state.traffic)))
     if traffic and state.traffic:
@@ -753,11 +758,12 @@ def _compact_rows(stream: StreamState) -> list[_Row]:
     return rows
 
 
-def _readings(state: WatchState, width: int, *, compact: bool = False) -> list[RenderableType]:
+def _readings(state: WatchState, width: int, *, compact: bool = False, header: bool = True) -> list[RenderableType]:
     """Per stream a header line (key, rows, rate, last row) and a table of its signals, all tables
     with the same column widths: label, value and units whole, then the trend in what is left of
     ``width`` (characters), min and max only when the trend still gets :data:`MIN_TREND_CHARS`.
-    ``compact``: one row per column (:func:`_compact_rows`), no blank line between streams."""
+    ``compact``: one row per column (:func:`_compact_rows`), no blank line between streams;
+    ``header``: the column headings above the first table."""
     if not state.streams:
         return [Text("no streams", style="dim")]
     by_stream = [(s, _compact_rows(s) if compact else _reading_rows(s)) for s in state.streams]
@@ -789,7 +795,7 @@ def _readings(state: WatchState, width: int, *, compact: bool = False) -> list[R
         out.append(head)
         if not rs:
             continue
-        t = Table(box=box.SIMPLE_HEAD, show_header=i == 0, padding=(0, 1), pad_edge=False, show_edge=False, expand=False)
+        t = Table(box=box.SIMPLE_HEAD, show_header=i == 0 and header, padding=(0, 1), pad_edge=False, show_edge=False, expand=False)
         t.add_column("reading", no_wrap=True, width=w["label"])
         t.add_column("value", justify="right", no_wrap=True, width=w["value"])
         t.add_column("units", no_wrap=True, width=w["units"])

@@ -236,7 +236,8 @@ def _monitor_file(tmp_path: Path) -> Path:
                                          Column("status", "1", "u2")], rate_hz=100.0)
     tc = rec.add_stream("thermocouples", [Column(f"ch10{i}", "degC") for i in range(1, 5)], "monitor", rate_hz=1.0)
     ch = rec.add_stream("tvac", [Column("air_temp", "degC"), Column("mount_temp", "degC"), Column("pressure", "Torr")], "monitor", rate_hz=1.0)
-    rt = rec.add_stream("rate_table", [Column("angle", "deg"), Column("rate", "deg/s"), Column("statusword", "1")], "monitor", rate_hz=1.0)
+    rt = rec.add_stream("rate_table", [Column("angle", "deg"), Column("rate", "deg/s"), Column("tilt", "deg"), Column("statusword", "1"),
+                                       Column("tilt_statusword", "1")], "monitor", rate_hz=1.0)  # the columns of the real one
     rec.start()
     t = np.arange(0, 700.0, 0.01)
     spike = np.where(np.isclose(t, 699.99), 9.0, 0.1 * np.sin(t))  # the last value lies beyond every bin mean
@@ -245,7 +246,8 @@ def _monitor_file(tmp_path: Path) -> Path:
     ts = np.arange(0, 700.0, 1.0)
     rec.append(tc, ts, **{f"ch10{i}": 20.0 + ts / 100 for i in range(1, 5)})
     rec.append(ch, ts, air_temp=20 - ts / 50, mount_temp=20 - ts / 60, pressure=np.full(len(ts), 760.0))
-    rec.append(rt, ts, angle=ts * 5, rate=np.full(len(ts), 5.0), statusword=np.where(ts < 350, 0x0637, 0x0237).astype(float))
+    rec.append(rt, ts, angle=ts * 5, rate=np.full(len(ts), 5.0), tilt=np.full(len(ts), -36.4),
+               statusword=np.where(ts < 350, 0x0637, 0x0237).astype(float), tilt_statusword=np.full(len(ts), 0x1640, dtype=float))
     rec.flush()
     rec.tick(699.99)
     rec.close("completed")
