@@ -273,6 +273,10 @@ def test_watch_fits_80x24_with_every_stream_and_honest_extremes(tmp_path):
         for sig in stream.signals:
             if sig.low == sig.low:
                 assert sig.low <= sig.value <= sig.high, (stream.key, sig.label, sig.low, sig.value, sig.high)
+    console = Console(record=True, width=80, height=22)  # tighter still: no table header, one line per status
+    console.print(build(state, 80, 22))
+    tight = console.export_text()
+    assert len(tight.splitlines()) <= 22 and all(key in tight for key in ("acs_board", "rate_table/monitor", "tvac/monitor")), tight
     gyro = state.signal("acs_board", "gyro x")
     assert gyro.high == 9.0 and gyro.trend_max < 9.0  # a bin mean would have hidden it
 
