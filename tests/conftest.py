@@ -83,3 +83,12 @@ def real_log():
             pytest.skip(f"real data unavailable: {exc}")
 
     return get
+
+
+@pytest.fixture(scope="session")
+def unit_runs(tmp_path_factory):
+    """A catalogued runs directory of several units of two part numbers with dry-runs mixed in
+    (tests/unit_runs.py: how it is made, and what of it stands in for hardware runs)."""
+    from tests.unit_runs import build_runs
+
+    return build_runs(tmp_path_factory.mktemp("units"))

@@ -211,7 +211,7 @@ def test_watch_once_renders_step_and_readings(tmp_path: Path) -> None:
     line = next(x for x in text.splitlines() if "air_temp" in x)
     assert "22.2" in line and "degC" in line
     line = next(x for x in text.splitlines() if "pressure" in x)
-    assert "0.00033287" in line and "Torr" in line and "█▇▆▅▅▄▃▃▂▂▁▁" in line  # 12 rows: 12 points
+    assert "3.3287e-04" in line and "Torr" in line and "█▇▆▅▅▄▃▃▂▂▁▁" in line  # 12 rows: 12 points (issue 30: one formatter)
     assert "1,200 rows" in text and "100 Hz" in text
     assert "step_start" in text and "hot plateau soak" in text
     assert max(len(x) for x in text.splitlines()) <= 120
