@@ -105,9 +105,16 @@ def test_prompt_keeps_the_heartbeat_reads_waiting_and_asks_again_after_a_typo(tm
         seen["summary"] = read_run_summary(path, stale_after_s=STALE_S)
         seen["watch"] = snapshot(path, stale_after_s=STALE_S)
         os.write(terminal, b"maybe\n")
-        time.sleep(0.5)
-        seen["after_typo"] = read_run_summary(path, stale_after_s=STALE_S)
-        os.write(terminal, b"yes\n")
+        try:  # wait for the typo in the run file and the question asked again (a second prompt event)
+            deadline = time.monotonic() + 30.0
+            while time.monotonic() < deadline and "after_typo" not in seen:
+                summary = read_run_summary(path, stale_after_s=STALE_S)
+                typo = any(json.loads(e.message).get("answer") == "maybe" for e in summary.events if e.kind == "operator")
+                if typo and sum(e.kind == "prompt" for e in summary.events) == 2:
+                    seen["after_typo"] = summary
+                time.sleep(0.05)
+        finally:
+            os.write(terminal, b"yes\n")
 
     person = threading.Thread(target=operator_at_the_terminal)
     person.start()
@@ -125,6 +132,7 @@ def test_prompt_keeps_the_heartbeat_reads_waiting_and_asks_again_after_a_typo(tm
     console = Console(record=True, width=100)
     console.print(build(state))
     assert "waiting for operator: Close the chamber door" in console.export_text()
+    assert "after_typo" in seen, "no invalid answer and second question in the run file within 30 s"
     assert seen["after_typo"].live_status == "waiting"  # asked again, still waiting
 
     assert result.status == "completed", result.abort_reason

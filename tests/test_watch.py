@@ -345,6 +345,7 @@ def test_missing_file_is_waited_for(tmp_path: Path) -> None:
     assert "COMPLETED" in console.export_text()
 
 
+@pytest.mark.signals  # SIGINT must raise KeyboardInterrupt here, as in a terminal, not be ignored as in a background job
 def test_ctrl_c_ends_the_live_view_quietly(tmp_path: Path) -> None:
     rec, board, _ = _create(tmp_path)
     rec.event("step_start", "record", "endless soak", t_s=0.0, step=0)
