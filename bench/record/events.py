@@ -14,6 +14,7 @@ import numpy as np
 
 from bench.record import layout
 from bench.record.space import new_chunks
+from bench.redact import redact, redact_bytes
 
 EVENT_CHUNK_ROWS = 1024
 """Rows per chunk of ``/events``."""
@@ -72,6 +73,9 @@ class EventLog:
         """Buffer one event (see :meth:`bench.record.RunRecorder.event`). Raises ``ValueError`` for a
         kind that is not 1-16 ASCII characters or a step outside int32. A run logs every command and
         reply (tens per second of run time): kinds and sources are encoded once and kept."""
+        message, source = redact(message), redact(source)
+        if data and kind not in layout.TRAFFIC_EVENT_KINDS:  # traffic is kept byte for byte: replay answers it
+            data = redact_bytes(data)
         kind_b = self._kinds.get(kind)
         if kind_b is None:
             kind_b = self._kinds[kind] = _encode_kind(kind)

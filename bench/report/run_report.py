@@ -42,6 +42,7 @@ from bench.record.reader import RunSummary, read_run_summary, read_stream
 from bench.report import figures as F
 from bench.report import static as S
 from bench.report.html import Cell, esc, figure_png, fmt, hms, page, table
+from bench.terminal_text import printable
 
 ANALYSES: dict[str, tuple[str, str]] = {
     "thermal": ("bench.analysis.thermal_cal", "thermal calibration"),
@@ -113,7 +114,7 @@ def build_report(run_path: str | Path) -> str:
         shown.append(("Not applicable to this run", section_not_applicable(omitted)))
     name = str(summary.attrs.get(layout.ATTR_PROCEDURE_NAME, "")) or path.stem
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-    return page(f"Run report: {name}", shown, subtitle=f"{path.name}; report generated {generated} by bench {__version__}")
+    return page(f"Run report: {name}", shown, subtitle=f"{printable(path.name)}; report generated {generated} by bench {__version__}")
 
 
 def report_sections(summary: RunSummary, data: "RunData", ds: Any, ds_note: str) -> list[Section]:
@@ -435,7 +436,7 @@ def section_summary(summary: RunSummary) -> str:
         duration = hms(run_time if run_time is not None else wall)
     rows.append(["duration (h:mm:ss)", duration])
     size = summary.path.stat().st_size if summary.path.exists() else 0
-    rows.append(["run file", f"{summary.path.resolve()} ({size / 1e6:.1f} MB)"])
+    rows.append(["run file", f"{printable(summary.path.resolve())} ({size / 1e6:.1f} MB)"])  # a name need not be UTF-8
     other = [s for s in summary.steps if s.type not in ("check", "bit") and s.outcome in ("failed", "aborted", "interrupted")]
     if other:
         rows.append(["other steps", Cell(", ".join(f"{s.index + 1} {s.name}: {s.outcome}" for s in other), "fail")])
