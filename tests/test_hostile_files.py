@@ -254,3 +254,180 @@ def test_the_recorder_masks_credentials_in_every_text(tmp_path: Path) -> None:
     assert "postgresql://bench:***@labdb/bench" in s.config_text and s.abort_reason == "catalogue postgresql://bench:***@labdb/bench failed"
     assert [e.message for e in s.events if e.kind == "note"] == ["connecting to postgresql://bench:***@labdb/bench",
                                                                  "Authorization: Bearer ***"]
+
+
+# ---- D1: -o only replaces a regular file ----------------------------------------------------------------
+def test_output_never_replaces_a_device_or_fifo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import stat
+
+    run = _recorded(tmp_path / "runs")
+    device = tmp_path / "full"  # a private node of /dev/full's device: a failing run must not replace the machine's
+    try:
+        os.mknod(device, 0o666 | stat.S_IFCHR, os.makedev(1, 7))
+    except OSError as exc:
+        pytest.skip(f"cannot make a device node here: {exc.strerror}")
+    fifo = tmp_path / "out.fifo"
+    os.mkfifo(fifo)
+    link = tmp_path / "link.html"
+    link.symlink_to(tmp_path / "target.html")
+    for target, kind in ((device, "a character device"), (fifo, "a FIFO"), (link, "a symbolic link")):
+        code, _out, err = _cli(capsys, "report", str(run), "-o", str(target), "--force")
+        assert code == 2 and f"{target} is {kind}" in err, err
+    assert device.is_char_device() and fifo.is_fifo() and link.is_symlink()
+    assert not (tmp_path / "target.html").exists()
+    assert _cli(capsys, "report", str(run), "-o", str(tmp_path / "r.html"), "--force")[0] == 0  # a regular file still is
+
+
+# ---- H1: data inputs that are FIFOs ---------------------------------------------------------------------------
+def _main_or_unblock(fifo: Path, args: list[str], timeout_s: float = 20.0) -> tuple[int | None, str]:
+    """``bench ARGS`` in a thread of this process; if it is still running after ``timeout_s`` (blocked
+    on the FIFO), the FIFO is opened for writing to release it, and the result says None."""
+    import contextlib
+    import io
+    import threading
+
+    out: dict[str, object] = {}
+    err = io.StringIO()
+
+    def target() -> None:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            out["code"] = main(args)
+
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    t.join(timeout_s)
+    if t.is_alive():
+        fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)  # a reader is there: this opens, and closing gives it EOF
+        os.close(fd)
+        t.join(30)
+        return None, err.getvalue()
+    return out.get("code"), err.getvalue()  # type: ignore[return-value]
+
+
+def test_a_fifo_as_data_input_is_refused_at_once(tmp_path: Path) -> None:
+    for suffix in (".csv", ".h5", ".nc"):
+        fifo = tmp_path / f"data{suffix}"
+        os.mkfifo(fifo)
+        for args in (["diagnose", str(fifo)], ["calibrate", "noise", str(fifo)], ["import", str(fifo), "-o", str(tmp_path / "x.h5")],
+                     ["calibrate", "noise", str(fifo), "--map", "gyro=angular_velocity:rad/s"]):
+            code, err = _main_or_unblock(fifo, args)  # before: blocked for ever on open()
+            assert code == 2 and "not a regular file" in err.strip().splitlines()[-1], (args, code, err)
+
+
+# ---- T10, D2, D4: damaged files ------------------------------------------------------------------------------
+def test_a_link_to_nothing_inside_a_run_file_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import h5py
+
+    path = _recorded(tmp_path)
+    with h5py.File(path, "r+") as f:
+        f["instruments"]["board"] = h5py.SoftLink("/nowhere")
+    for args in (["inspect", str(path)], ["report", str(path), "-o", str(tmp_path / "r.html")], ["catalog", "rebuild", str(tmp_path)]):
+        code, _out, err = _cli(capsys, *args)
+        assert code in (1, 2) and "/instruments/board is a link to /nowhere, which does not exist" in err, (args, err)
+        assert "NoneType" not in err
+    code, out, _err = _cli(capsys, "inspect", str(path), "--verify")  # the file's structure changed since it was written
+    assert code == 1 and "CHANGED" in out
+
+
+@pytest.mark.parametrize("cut", [1, 100, 5000])
+def test_verify_fails_a_truncated_file(tmp_path: Path, capsys: pytest.CaptureFixture[str], cut: int) -> None:
+    path = _recorded(tmp_path, rows=3000)
+    code, out, _err = _cli(capsys, "inspect", str(path), "--verify")
+    assert code == 0 and "verified" in out
+    data = path.read_bytes()
+    path.write_bytes(data[:-cut])
+    code, out, err = _cli(capsys, "inspect", str(path), "--verify")
+    assert code in (1, 2) and "verified:" not in out, out + err
+    assert "truncated" in out + err
+
+
+def _flip_attribute(path: Path, name: str) -> str:
+    """Flip one bit of the stored value of root attribute ``name`` in ``path`` (the occurrence HDF5
+    reads back changed, without an error); the value read after."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        value = str(f.attrs[name])
+    data = path.read_bytes()
+    start = 0
+    while True:
+        pos = data.find(value.encode(), start)
+        assert pos >= 0, f"no occurrence of {value!r} changes attribute {name}"
+        damaged = bytearray(data)
+        damaged[pos + 1] ^= 0x04
+        path.write_bytes(bytes(damaged))
+        try:
+            with h5py.File(path, "r") as f:
+                now = str(f.attrs[name])
+        except Exception:  # noqa: BLE001 - that occurrence was metadata HDF5 checks
+            now = value
+        if now != value:
+            return now
+        path.write_bytes(data)
+        start = pos + 1
+
+
+@pytest.mark.parametrize("name", ["status", "procedure_name", "started_utc"])
+def test_verify_sees_a_bit_flipped_in_an_attribute(tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str) -> None:
+    path = _recorded(tmp_path, procedure="attr_probe")
+    assert _cli(capsys, "inspect", str(path), "--verify")[0] == 0
+    changed = _flip_attribute(path, name)
+    code, out, err = _cli(capsys, "inspect", str(path), "--verify")
+    assert code == 1 and "attributes or texts changed" in out and "attributes and texts" in out and "CHANGED" in out, (changed, out, err)
+
+
+def test_verify_says_the_attributes_of_an_older_file_are_not_checked(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import h5py
+
+    path = _recorded(tmp_path)
+    with h5py.File(path, "r+") as f:
+        del f.attrs["attrs_sha256"]  # as written before digests
+    code, out, _err = _cli(capsys, "inspect", str(path), "--verify")
+    assert code == 0 and "not checked" in out and "the attributes (no digest" in out and "/config/text" in out, out
+
+
+# ---- D5: kill -9 while the run file is set up -------------------------------------------------------------
+SETUP_WRITER = """
+import sys, time
+from pathlib import Path
+from bench.record import Column, RunRecorder
+rec = RunRecorder.create(Path(sys.argv[1]), procedure_name="setup", procedure_text="name: setup\\n", procedure_path="setup.yaml",
+                         config_text="name: lab\\n", config_path="lab.yaml", mode="sim", software_version="test")
+for i in range(40):  # the setup of a run: instruments identified, streams declared (before SWMR mode)
+    rec.add_instrument(f"inst{i}", {"model": "x" * 200})
+    rec.add_stream(f"inst{i}", [Column("v", "V", "f8")])
+    time.sleep(0.01)
+time.sleep(60)
+"""
+
+
+def _kill_when_named(argv: list[str], runs: Path) -> Path:
+    """Start ``argv`` and SIGKILL it the moment a ``*.h5`` appears in ``runs``; that file."""
+    p = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    files: list[Path] = []
+    while not files and time.monotonic() < deadline and p.poll() is None:
+        files = list(runs.glob("*.h5")) if runs.exists() else []
+    p.kill()
+    p.wait(timeout=10)
+    assert files, "no run file appeared"
+    return files[0]
+
+
+def test_a_run_file_killed_while_set_up_can_be_read(tmp_path: Path) -> None:
+    """kill -9 the moment the run file's name appears, during the set-up before SWMR mode (before: 5
+    of 5 such files were unopenable, "marked open for writing outside SWMR mode"): the file reads,
+    as crashed. Four recorders killed so, and one `bench run`."""
+    from bench.record import read_run_summary
+
+    script = tmp_path / "setup_writer.py"
+    script.write_text(SETUP_WRITER)
+    files = [_kill_when_named([sys.executable, str(script), str(tmp_path / f"runs{n}")], tmp_path / f"runs{n}") for n in range(4)]
+    proc = tmp_path / "short.yaml"
+    proc.write_text("schema: bench-procedure/1\nname: short\ninstruments: [acs_board]\nsteps:\n"
+                    "  - power: {instrument: acs_board, on: true}\n  - record: {instrument: acs_board, duration: 2 s}\n")
+    files.append(_kill_when_named([sys.executable, "-m", "bench", "run", str(proc), "--config", str(ROOT / "configs" / "sim.yaml"), "--sim",
+                                   "--runs-dir", str(tmp_path / "runs_cli")], tmp_path / "runs_cli"))
+    for path in files:
+        s = read_run_summary(path, stale_after_s=0.0)  # readable, whatever moment the kill hit
+        assert s.status in ("crashed", "completed"), (path, s.status)
