@@ -281,12 +281,14 @@ def upsert_statement(conn: Connection) -> Any:
                                       set_={name: stmt.excluded[name] for name in ROW_FIELDS if name != "path"})
 
 
-def open_catalog(url: URL, *, create: bool = True, field: str = "--catalog") -> Catalog:
+def open_catalog(url: URL, *, create: bool = True, field: str = "--catalog", writes: bool = True) -> Catalog:
     """Open the catalogue at ``url`` and bring its schema to the current version.
 
     ``create=False`` (queries) refuses a SQLite file that does not exist instead of creating an
-    empty one: :class:`InputError` naming the option ``field`` that chose it. Raises
-    :class:`CatalogError` when the database cannot be reached or migrated."""
+    empty one: :class:`InputError` naming the option ``field`` that chose it. ``writes=False``
+    (the web station's requests) writes nothing at all: no WAL switch, no migration (a catalogue of
+    another version is then a :class:`CatalogError`). Raises :class:`CatalogError` when the database
+    cannot be reached or migrated."""
     path = sqlite_file(url)
     if path is not None:
         if not create and not path.exists():
@@ -309,9 +311,11 @@ def open_catalog(url: URL, *, create: bool = True, field: str = "--catalog") -> 
         if found > SCHEMA_VERSION:  # refused before anything is written (the run-file format_version policy)
             raise CatalogError(f"catalogue schema version {found} is newer than this bench knows (up to {SCHEMA_VERSION}); "
                                f"upgrade bench ({display_url(url)} was left as it is)")
-        if path is not None and not cat.read_only:
+        if path is not None and not cat.read_only and writes:
             cat.read_only = not _sqlite_wal(cat.engine)
         if found != SCHEMA_VERSION:  # only then take the write lock
+            if not writes:
+                raise CatalogError(f"catalogue {display_url(url)} has schema version {found}, not {SCHEMA_VERSION} yet")
             if cat.read_only:
                 raise CatalogError(f"catalogue {display_url(url)} has schema version {found} and is read-only here: "
                                    "it cannot be brought to this bench's version")
