@@ -92,13 +92,19 @@ def test_a_closed_pipe_ends_the_listing_quietly(tmp_path: Path) -> None:
     runs.mkdir()
     rows = [{**{k: "" for k in ROW_FIELDS}, "path": f"/x/{i}.h5", "status": "completed", "started_utc": None, "ended_utc": None,
              "run_time_s": 1.0, "verdict": "passed", "first_failed_check": None, "reason": None, "min_pressure_torr": None,
-             "temp_min_degc": None, "temp_max_degc": None} for i in range(2000)]
+             "temp_min_degc": None, "temp_max_degc": None} for i in range(300)]
     with open_catalog(resolve_url(None, runs)) as cat:
         cat.insert_new(rows)
-    for args in (["runs", "--json"], ["runs"]):
-        p = subprocess.Popen([sys.executable, "-m", "bench", *args, "--runs-dir", str(runs)], cwd=ROOT, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE)
-        head = p.stdout.read(10)
+    # --json: 180 kB, more than a pipe holds, and the reader leaves after 10 bytes (a write fails);
+    # the table: the reader is gone before it starts (its first write, or the flush at exit, fails)
+    commands = ((["runs", "--json"], 10), (["runs"], 0))
+    procs = [subprocess.Popen([sys.executable, "-m", "bench", *args, "--runs-dir", str(runs)], cwd=ROOT, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE) for args, _n in commands]
+    for p, (_args, n) in zip(procs, commands):
+        if not n:
+            p.stdout.close()
+    for p, (args, n) in zip(procs, commands):
+        head = p.stdout.read(n) if n else b"-"
         p.stdout.close()
         err = p.stderr.read().decode()
         code = p.wait(timeout=60)
@@ -401,17 +407,24 @@ time.sleep(60)
 """
 
 
-def _kill_when_named(argv: list[str], runs: Path) -> Path:
-    """Start ``argv`` and SIGKILL it the moment a ``*.h5`` appears in ``runs``; that file."""
-    p = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+def _kill_when_named(jobs: list[tuple[list[str], Path]]) -> list[Path]:
+    """Start each ``(argv, runs)`` at once and SIGKILL each the moment a ``*.h5`` appears in its
+    ``runs``; those files."""
+    procs = [(subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL), runs) for argv, runs in jobs]
+    found: dict[int, Path] = {}
     deadline = time.monotonic() + 60
-    files: list[Path] = []
-    while not files and time.monotonic() < deadline and p.poll() is None:
-        files = list(runs.glob("*.h5")) if runs.exists() else []
-    p.kill()
-    p.wait(timeout=10)
-    assert files, "no run file appeared"
-    return files[0]
+    while len(found) < len(procs) and time.monotonic() < deadline:
+        for i, (p, runs) in enumerate(procs):
+            if i not in found:
+                files = list(runs.glob("*.h5")) if runs.exists() else []
+                if files or p.poll() is not None:
+                    p.kill()
+                    found[i] = files[0] if files else Path()
+    for p, _runs in procs:
+        p.kill()
+        p.wait(timeout=10)
+    assert all(f != Path() for f in found.values()) and len(found) == len(procs), "a run file did not appear"
+    return list(found.values())
 
 
 def test_a_run_file_killed_while_set_up_can_be_read(tmp_path: Path) -> None:
@@ -422,12 +435,12 @@ def test_a_run_file_killed_while_set_up_can_be_read(tmp_path: Path) -> None:
 
     script = tmp_path / "setup_writer.py"
     script.write_text(SETUP_WRITER)
-    files = [_kill_when_named([sys.executable, str(script), str(tmp_path / f"runs{n}")], tmp_path / f"runs{n}") for n in range(4)]
     proc = tmp_path / "short.yaml"
     proc.write_text("schema: bench-procedure/1\nname: short\ninstruments: [acs_board]\nsteps:\n"
                     "  - power: {instrument: acs_board, on: true}\n  - record: {instrument: acs_board, duration: 2 s}\n")
-    files.append(_kill_when_named([sys.executable, "-m", "bench", "run", str(proc), "--config", str(ROOT / "configs" / "sim.yaml"), "--sim",
-                                   "--runs-dir", str(tmp_path / "runs_cli")], tmp_path / "runs_cli"))
-    for path in files:
+    jobs = [([sys.executable, str(script), str(tmp_path / f"runs{n}")], tmp_path / f"runs{n}") for n in range(4)]
+    jobs.append(([sys.executable, "-m", "bench", "run", str(proc), "--config", str(ROOT / "configs" / "sim.yaml"), "--sim",
+                  "--runs-dir", str(tmp_path / "runs_cli")], tmp_path / "runs_cli"))
+    for path in _kill_when_named(jobs):
         s = read_run_summary(path, stale_after_s=0.0)  # readable, whatever moment the kill hit
         assert s.status in ("crashed", "completed"), (path, s.status)
