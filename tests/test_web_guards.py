@@ -25,6 +25,7 @@ import pytest
 
 from bench.record import read_run_summary
 from tests.browser import ROOT, TOKEN, Server, make_run_file
+from tests.test_web_station import _wait
 
 PROCEDURES = ROOT / "tests" / "data" / "procedures"
 SIM_CONFIG = ROOT / "configs" / "sim.yaml"
@@ -66,16 +67,6 @@ class Client:
 
     def post(self, path: str, body: dict | bytes, **kw) -> tuple[int, dict]:
         return self.request("POST", path, body, token=kw.pop("token", TOKEN), **kw)
-
-
-def _wait(cond, timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        time.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
 @pytest.fixture(scope="module")
