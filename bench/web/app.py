@@ -41,6 +41,7 @@ from bench.web.guards import read_body
 from bench.web.live import LiveRuns
 from bench.web.pages import LiveReader, run_page, runs_table
 from bench.web.paths import run_path
+from bench.web.credentials import CredentialCheck
 from bench.web.requests import MAX_BODY_BYTES, BodyTooLarge, Field, parse_body, query
 from bench.web.runs_index import RunsIndex
 
@@ -93,34 +94,12 @@ class Station:
     index: RunsIndex | None = None
     _reports: dict[tuple, str] = field(default_factory=dict)
     _report_lock: threading.Lock = field(default_factory=threading.Lock)
-    _secrets: dict[str, tuple[tuple, str]] = field(default_factory=dict)
+    credentials: CredentialCheck = field(default_factory=CredentialCheck)
     _plans: dict[tuple, dict] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.index is None:
             self.index = RunsIndex(self.runs_dir, self.catalog)
-
-    def secret_in(self, path: Path) -> str:
-        """Where the run file ``path`` still holds a credential (a file written before they were
-        masked), without quoting it; ``""`` when it holds none. Kept while the file does not change."""
-        from bench.record import read_run_summary
-        from bench.redact import find_secrets
-
-        st = path.stat()
-        key = (st.st_mtime_ns, st.st_size)
-        with self._report_lock:
-            cached = self._secrets.get(str(path))
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        s = read_run_summary(path, traffic=False)
-        texts = [("/config/text", s.config_text), ("/procedure/text", s.procedure_text)]
-        texts += [(f"attribute {k}", str(v)) for k, v in s.attrs.items()]
-        texts += [(f"/instruments/{n}", " ".join(f"{k}={v}" for k, v in info.items())) for n, info in s.instruments.items()]
-        texts += [(f"event {e.kind} at {e.t_s:.3f} s", f"{e.source} {e.message} {e.data.decode('utf-8', 'replace')}") for e in s.events]
-        found = next((f"{hits[0]} of {where}" for where, t in texts for hits in [find_secrets(t)] if hits), "")
-        with self._report_lock:
-            self._secrets[str(path)] = (key, found)
-        return found
 
     def plan(self, name: str, params: dict[str, str]) -> dict[str, Any]:
         """``bench plan``'s view of library procedure ``name`` with ``params`` (:func:`bench.web.launch.plan`),
@@ -280,7 +259,7 @@ def _routes_app(station: Station) -> Starlette:
 
     def api_file(request: Request) -> Response:
         path = path_of(request)
-        secret = station.secret_in(path)
+        secret = station.credentials.found_in(path)
         if secret:
             return _json({"errors": [f"{path.name} still holds a credential ({secret}; written before bench masked them): "
                                      "it is not served over the network; copy it from the station's disk, where it stays as it was"]}, 403)
