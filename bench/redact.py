@@ -30,8 +30,14 @@ from typing import Any
 MASK = "***"
 """What a credential is replaced by."""
 
-_QUICK = re.compile(r"://|pass|secret|token|key|bearer", re.IGNORECASE)
-"""A text without any of these holds no credential (most texts: a fast path for every event)."""
+_HINTS = ("://", "pass", "secret", "token", "key", "bearer")
+"""A text without any of these (in lower case) holds no credential: most texts, such as the messages
+of instrument traffic, leave :func:`redact` after this test (0.3 µs; a case-blind regex took 6 µs)."""
+
+
+def _may_hold(text: str) -> bool:
+    low = text.lower()
+    return any(h in low for h in _HINTS)
 
 _URL_PASSWORD = re.compile(
     r"(?P<head>[A-Za-z][A-Za-z0-9+.\-]*://[^\s:/@'\"<>]*:)"  # scheme://user:
@@ -57,21 +63,38 @@ def _mask(m: re.Match[str]) -> str:
     return f"{m.group('head')}{quote}{MASK}{quote}"
 
 
+_SEEN: dict[str, str] = {}
+"""Short texts already redacted -> the result: the recorder stores tens of thousands of instrument
+messages a second of virtual time, nearly all repeats (bounded by :data:`SEEN_MAX`)."""
+SEEN_MAX = 4096
+SEEN_CHARS = 256
+
+
 def redact(text: str) -> str:
     """``text`` with every credential (see the module docstring) replaced by ``***``; a text without
     one is returned unchanged (the same object)."""
-    if not text or not _QUICK.search(text):
+    if not text:
         return text
+    short = len(text) <= SEEN_CHARS
+    if short:
+        hit = _SEEN.get(text)
+        if hit is not None:
+            return hit
     out = text
-    for pattern, _what in _KINDS:
-        out = pattern.sub(_mask, out)
+    if _may_hold(text):
+        for pattern, _what in _KINDS:
+            out = pattern.sub(_mask, out)
+    if short:
+        if len(_SEEN) >= SEEN_MAX:
+            _SEEN.clear()
+        _SEEN[text] = out
     return out
 
 
 def find_secrets(text: str) -> list[str]:
     """Where ``text`` holds a credential, without quoting it: ``["a URL password on line 7", …]``
     (empty when :func:`redact` would change nothing)."""
-    if not text or not _QUICK.search(text):
+    if not text or not _may_hold(text):
         return []
     found = []
     for pattern, what in _KINDS:
@@ -98,7 +121,7 @@ def redact_bytes(data: bytes) -> bytes:
     """Bytes of a stored text or JSON document with their credentials redacted: JSON is parsed and
     written again only when something was redacted (so it stays valid JSON); other UTF-8 text goes
     through :func:`redact`; anything else (binary) is returned unchanged."""
-    if not data or not _QUICK.search(data.decode("latin-1")):
+    if not data or not _may_hold(data.decode("latin-1")):
         return data
     try:
         text = data.decode("utf-8")
