@@ -78,6 +78,7 @@ async function loadRuns(f) {
   err.textContent = "";
   let d;
   try { d = await getJSON("/api/runs?" + f.toString()); } catch (e) { err.textContent = e.message; box.innerHTML = ""; return; }
+  err.textContent = (d.warnings || []).join("\n");  // a catalogue that cannot be read: the rows below come from the files
   const rows = d.runs.map((r) => `<tr class="run-row" data-id="${esc(r.id)}" data-unit="${esc(r.unit_serial)}" data-status="${esc(r.status)}">
     <td>${esc((r.started_utc || "").replace("T", " ").replace("Z", ""))}</td><td>${esc(r.unit_serial)}</td>
     <td>${r.id ? `<a href="/run?id=${encodeURIComponent(r.id)}">${esc(r.procedure_name)}</a>` : esc(r.procedure_name)}</td>
