@@ -36,12 +36,12 @@ from starlette.staticfiles import StaticFiles
 
 from bench.errors import InputError, InputErrors
 from bench.redact import redact, redact_data
+from bench.web.credentials import CredentialCheck
 from bench.web.decimate import StreamCache, decimate, xy_pairs
 from bench.web.guards import read_body
 from bench.web.live import LiveRuns
 from bench.web.pages import LiveReader, run_page, runs_table
 from bench.web.paths import run_path
-from bench.web.credentials import CredentialCheck
 from bench.web.requests import MAX_BODY_BYTES, BodyTooLarge, Field, parse_body, query
 from bench.web.runs_index import RunsIndex
 
@@ -54,8 +54,9 @@ PLAN_CACHE = 64
 """Plans kept (procedure, parameters and config unchanged: the same text)."""
 _ID = Field("text", required=True, max_chars=1024)
 _OPERATOR = Field("name", nullable=True)
-START_FIELDS = {"procedure": Field("text", required=True, max_chars=1024), "params": Field("params", {}), "unit": Field("text", None, max_chars=64, nullable=True),
-                "dry_run": Field("bool", True), "realtime": Field("bool", True), "accept_overdue": Field("bool", False), "operator": _OPERATOR}
+START_FIELDS = {"procedure": Field("text", required=True, max_chars=1024), "params": Field("params", {}),
+                "unit": Field("text", None, max_chars=64, nullable=True), "dry_run": Field("bool", True), "realtime": Field("bool", True),
+                "accept_overdue": Field("bool", False), "operator": _OPERATOR}
 """The fields of ``POST /api/start`` (every other field is refused)."""
 ANSWER_FIELDS = {"id": _ID, "answer": Field("text", required=True), "operator": _OPERATOR}
 PAUSE_FIELDS = {"id": _ID, "paused": Field("bool", None, nullable=True), "operator": _OPERATOR}

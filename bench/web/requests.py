@@ -26,7 +26,7 @@ import re
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from bench.errors import InputError
+from bench.errors import InputError, finite_number
 
 MAX_BODY_BYTES = 64 * 1024
 """Largest request body accepted (bytes); a larger one is refused before it is read (HTTP 413)."""
@@ -179,12 +179,14 @@ def query(params_: Mapping[str, str], fields: Mapping[str, Field]) -> dict[str, 
             out[name] = spec.default
             continue
         value = text(raw, name, spec.max_chars if spec.kind in ("text", "json") else 64)
-        if spec.kind in ("number", "int"):
+        if spec.kind == "int":
             try:
-                parsed: Any = int(value) if spec.kind == "int" else float(value)
+                parsed: Any = int(value)
             except ValueError:
-                raise InputError(f"expected {'an integer' if spec.kind == 'int' else 'a number'}, got {value!r}", None, name) from None
-            out[name] = number(parsed, name, spec.lo, spec.hi, integer=spec.kind == "int")
+                raise InputError(f"expected an integer, got {value!r}", None, name) from None
+            out[name] = number(parsed, name, spec.lo, spec.hi, integer=True)
+        elif spec.kind == "number":
+            out[name] = number(finite_number(value, None, name), name, spec.lo, spec.hi)
         elif spec.kind == "json":
             try:
                 out[name] = json.loads(value, parse_constant=_no_constant)
