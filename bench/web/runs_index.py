@@ -30,6 +30,10 @@ from bench.errors import BenchError, InputError
 
 WRITE_RETRY_S = 5.0
 """Pause (s) of the cataloguer after a failed write before it tries again."""
+READS_PER_REQUEST = 500
+"""Run files one request reads at most (newest first; the rest at the next requests, as the
+cataloguer takes them): a runs directory of thousands of uncatalogued files never makes one request
+read them all."""
 
 
 class RunsIndex:
@@ -92,6 +96,7 @@ class RunsIndex:
         if not self.runs_dir.is_dir():
             return {}
         out: dict[str, dict[str, Any]] = {}
+        files = []
         for p in run_files(self.runs_dir, recursive=True):
             if outside(p, self.runs_dir) or unnameable(p):
                 continue
@@ -100,12 +105,21 @@ class RunsIndex:
                 continue
             try:
                 st = p.stat()
-                stamp = (st.st_mtime_ns, st.st_size)
-                with self._lock:
-                    cached = self._files.get(key)
-                if cached is not None and cached[0] == stamp:
-                    out[key] = cached[1]
-                    continue
+            except OSError:
+                continue
+            files.append((st.st_mtime_ns, st.st_size, key, p))
+        reads = 0
+        for mtime_ns, size, key, p in sorted(files, reverse=True):  # newest first
+            stamp = (mtime_ns, size)
+            with self._lock:
+                cached = self._files.get(key)
+            if cached is not None and cached[0] == stamp:
+                out[key] = cached[1]
+                continue
+            if reads >= READS_PER_REQUEST:
+                continue
+            reads += 1
+            try:
                 row = run_row(p)
             except (InputError, OSError):
                 continue
