@@ -586,10 +586,8 @@ def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
 
         print(json.dumps(summary_json(summary, max_events=args.events), indent=2))
         return EXIT_OK
-    from bench.terminal_text import printable_data
-
-    # texts of the file are data: their escape sequences and line breaks are shown, never acted on
-    render_summary(printable_data(summary), console, max_events=args.events, traffic=args.traffic)
+    # texts of the file are data: render_summary shows their escape sequences and line breaks, never acts on them
+    render_summary(summary, console, max_events=args.events, traffic=args.traffic)
     return EXIT_OK
 
 
