@@ -492,10 +492,10 @@ def _check_safe_set_point(safe_c: float, limits: dict[str, tuple], node: Node, e
     """The chamber's safe set point (degC), written on every abort, must lie within its set-point
     limits (the tvac defaults narrowed by this config's ``limits:``): an abort must not heat or
     cool the unit beyond what a procedure may ask."""
-    from bench.procedure.limits import effective_limits
+    from bench.procedure.limits import effective_limits, outside_limits
 
     lo, hi, src = effective_limits("tvac", {"set_point": limits["set_point"]} if "set_point" in limits else {})["set_point"]
-    if (lo is not None and safe_c < lo) or (hi is not None and safe_c > hi):
+    if outside_limits(safe_c, lo, hi):
         errors.append(InputError(f"{safe_c:g} degC is outside the chamber's set-point limits {lo:g}..{hi:g} degC ({src}): "
                                  "the safe set point is written on every abort", node.location, "safe_set_point"))
 

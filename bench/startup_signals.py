@@ -5,13 +5,24 @@ Until the runner's own handlers take over (operator stop → safe state), a firs
 :class:`StoppedDuringStartup` where the program is, except inside :meth:`StartupSignals.held`
 blocks (creating or finalising the run file), where it is noted and raised by
 :meth:`StartupSignals.raise_pending` after the block. Later signals are only noted: the clean-up
-of the first one is not cut short. Light on purpose (``signal`` only): ``bench`` installs it
-before importing anything else (``bench/__main__.py``).
+of the first one is not cut short. Light on purpose (``signal``, ``sys``, ``_thread`` only):
+``bench`` installs it before importing anything else (``bench/__main__.py``).
+
+A signal can land while Python runs a finaliser (a weakref callback, ``__del__``, an SQLAlchemy or
+h5py clean-up run by the garbage collector). An exception raised there cannot leave it: Python prints
+"Exception ignored in … Traceback" and drops it, and the stop would be lost. While installed, the
+guard therefore also hooks :data:`sys.unraisablehook`: its own :class:`StoppedDuringStartup`
+dropped by a finaliser is swallowed silently and the signal is sent again to the main thread
+(:func:`signal.pthread_kill`, from a short-lived thread), so it is raised in the program itself a
+moment later (also interrupting a blocking call) and ends as documented (one line, exit 1). Every other unraisable exception goes to the hook found at
+install.
 """
 
 from __future__ import annotations
 
+import _thread
 import signal
+import sys
 from contextlib import contextmanager
 from types import FrameType
 from typing import Any, Iterator
@@ -54,6 +65,8 @@ class StartupSignals:
         self._raised = False
         self._handed_over = False
         self._old: dict[int, Any] = {}
+        self._old_unraisablehook: Any = None
+        self._main_thread = 0
 
     @classmethod
     def install(cls) -> "StartupSignals":
@@ -63,6 +76,9 @@ class StartupSignals:
             return cls.current
         guard = cls()
         guard._old = {s: signal.signal(s, guard._handle) for s in STOP_SIGNALS}
+        guard._main_thread = _thread.get_ident()
+        guard._old_unraisablehook = sys.unraisablehook
+        sys.unraisablehook = guard._unraisable
         cls.current = guard
         return guard
 
@@ -74,6 +90,9 @@ class StartupSignals:
             if signal.getsignal(s) == self._handle:
                 signal.signal(s, signal.SIG_IGN if self.signum is not None else old)
         self._old = {}
+        if self._old_unraisablehook is not None and sys.unraisablehook == self._unraisable:
+            sys.unraisablehook = self._old_unraisablehook
+        self._old_unraisablehook = None
         if StartupSignals.current is self:
             StartupSignals.current = None
 
@@ -102,6 +121,17 @@ class StartupSignals:
         """The run is built: from now on signals are only noted (:attr:`signum`), for the runner's
         handlers to take over and act on."""
         self._handed_over = True
+
+    def _unraisable(self, unraisable: Any) -> None:
+        """:data:`sys.unraisablehook` while installed: a :class:`StoppedDuringStartup` raised inside a
+        finaliser (and dropped there by Python) is delivered again to the program; the rest goes to
+        the previous hook."""
+        if isinstance(unraisable.exc_value, StoppedDuringStartup) and self.signum is not None:
+            self._raised = False
+            # sent from another thread: sent from here, the handler would run at once, inside this hook
+            _thread.start_new_thread(signal.pthread_kill, (self._main_thread, self.signum))
+            return
+        (self._old_unraisablehook or sys.__unraisablehook__)(unraisable)
 
     def _handle(self, signum: int, _frame: FrameType | None) -> None:
         if self.signum is None:

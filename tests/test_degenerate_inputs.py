@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.cli_output import one_error_line
 from tests.conftest import ROOT, run_cli
 from tests.test_foreign_data import bench_in_process
 
@@ -26,15 +27,6 @@ def write_csv(path: Path, gyro: str, rows: int = 400) -> Path:
     lines += [f"{i},{20 + i * 10 // rows},{gyro},{gyro},{gyro}" for i in range(rows)]
     path.write_text("\n".join(lines) + "\n")
     return path
-
-
-def one_error_line(res) -> str:
-    """The one stderr line of a run that must exit 2 without a traceback or a numpy warning."""
-    assert res.returncode == 2, (res.returncode, res.stdout[-2000:], res.stderr[-2000:])
-    assert "Traceback" not in res.stderr and "RuntimeWarning" not in res.stderr, res.stderr
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1, res.stderr
-    return lines[0]
 
 
 COMMANDS = [("diagnose",), ("calibrate", "thermal"), ("calibrate", "noise")]

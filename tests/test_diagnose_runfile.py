@@ -243,3 +243,40 @@ def test_progress_on_a_terminal_rewrites_one_line_and_erases_it():
     say("fitting")
     say.close()
     assert buf.getvalue() == "\rcalibrate noise: fitting (3 s)\x1b[K\r\x1b[K"
+
+
+def test_nothing_is_written_once_closed_even_by_a_late_heartbeat():
+    """A heartbeat thread that wakes after ``close`` (its join timed out on a loaded machine) must
+    not print after the command's own last line."""
+    from bench.analysis.progress import Progress
+
+    buf, clock = io.StringIO(), _Clock()
+    say = Progress("diagnose", buf, tty=False, heartbeat=False, clock=clock)
+    clock.t = 2.5
+    say("reading data.csv")
+    say.close()
+    clock.t = 20.0
+    say._tick()  # what the heartbeat thread does when it wakes
+    say("fitting")
+    assert buf.getvalue() == "diagnose: reading data.csv (2 s)\n"
+
+
+@pytest.mark.parametrize("label", ["diagnose", "report", "calibrate noise", "calibrate six-position", "calibrate rate-transfer"])
+def test_the_tests_recognise_exactly_the_progress_lines_the_commands_write(label):
+    """tests/cli_output.py drops progress lines before "one located error line": it must match
+    every line Progress writes for the commands' labels, and no located message."""
+    from bench.analysis.progress import Progress
+    from tests.cli_output import is_progress
+
+    buf, clock = io.StringIO(), _Clock()
+    with Progress(label, buf, tty=False, heartbeat=False, clock=clock) as say:
+        for t, message in enumerate(["reading /tmp/x y/data.csv", "round 1/6, candidates: 4/12 evaluated",
+                                     "selecting again against the noise model (gyro_x_dps: white 1 (deg/s)^2)"]):
+            clock.t = 2.0 + 2 * t
+            say(message)
+    lines = buf.getvalue().splitlines()
+    assert len(lines) == 3 and all(is_progress(line) for line in lines), lines
+    for located in ["/tmp/data.csv:2: sample_rate_hz: 0 Hz is outside the allowed range (0 s)",
+                    "data.csv: gyro_x_dps: nothing to fit", "--report: FILE exists; choose another name or delete it",
+                    "diagnose: reading data.csv (2 s) trailing", "note: 100 Hz (3 s)"]:
+        assert not is_progress(located), located

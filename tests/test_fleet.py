@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
 from pathlib import Path
 
 import h5py
@@ -18,6 +19,7 @@ import pytest
 from bench.cli import main
 from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from bench.fleet.files import destination
+from tests.cli_output import one_error_line
 
 SESSIONS = Path(__file__).resolve().parent / "sessions"
 RATE = SESSIONS / "rate_transfer_short.h5"
@@ -118,7 +120,8 @@ def test_fleet_json_of_each_file_is_the_serial_commands_json(command, scheduler,
             assert r["payload"] == json.loads(serial_out)
             assert (out / (Path(name).stem + suffix)).read_text() == serial_out  # byte for byte what the command prints
         else:
-            assert r["error"] == serial_err.strip() and not (out / (Path(name).stem + suffix)).exists()
+            serial = subprocess.CompletedProcess(command, code, serial_out, serial_err)
+            assert r["error"] == one_error_line(serial, code) and not (out / (Path(name).stem + suffix)).exists()
     assert results["rate_transfer_short.h5"]["exit_code"] == EXIT_OK  # one file has sensor data, the chamber runs none
     assert rc == EXIT_FAILED
 

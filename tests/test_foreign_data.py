@@ -19,6 +19,7 @@ import pytest
 from bench.analysis.dataset import load_dataset
 from bench.analysis.foreign import conversion, dataset_from_foreign, load_data, parse_columns, parse_mapping
 from bench.errors import InputError
+from tests.cli_output import one_error_line
 from tests.conftest import ROOT, run_cli
 
 RAD = 180.0 / math.pi
@@ -53,15 +54,6 @@ def phone_like(path: Path, n: int = 200) -> Path:
         "acceleration": (acc, {"units": np.bytes_(b"m/s2"), **rate}),
         "timestamp": np.arange(n, dtype=np.int64),
     })
-
-
-def bench_err(res) -> str:
-    """The one stderr line of a ``bench`` run that must exit 2."""
-    assert res.returncode == 2, (res.returncode, res.stdout[-2000:], res.stderr[-2000:])
-    assert "Traceback" not in res.stderr, res.stderr
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1, res.stderr
-    return lines[0]
 
 
 def bench_in_process(capsys, *args: str):
@@ -287,14 +279,14 @@ def test_cli_errors_name_the_file_and_the_mapping_entry(tmp_path, phone, capsys)
     for i, (args, start) in enumerate(cases):
         # two through a real `python -m bench` process, the rest through bench.cli.main in this one
         res = run_cli("calibrate", "noise", *args) if i in (0, 5) else bench_in_process(capsys, "calibrate", "noise", *args)
-        msg = bench_err(res)
+        msg = one_error_line(res)
         assert msg.startswith(start), (args, msg)
 
 
 def test_foreign_file_without_map_lists_its_variables(phone, tmp_path):
     for cmd in (["calibrate", "noise", str(phone)], ["diagnose", str(phone)],
                 ["import", str(phone), "-o", str(tmp_path / "out.h5")]):
-        msg = bench_err(run_cli(*cmd))
+        msg = one_error_line(run_cli(*cmd))
         assert msg.startswith(f"{phone}: not a bench run file: to analyse another program's HDF5/netCDF-4 data pass "
                               "--map TARGET=VARIABLE[COLUMNS]:UNITS"), msg
         assert "variables: acceleration (200×3, m/s2), angular_velocity (200×6, rad/s), timestamp (200, no units)" in msg
@@ -331,7 +323,7 @@ def test_import_of_a_mapped_file_round_trips(tmp_path, phone):
     assert ds.sample_rate_hz == 10.0
     # existing files are never overwritten
     res = run_cli("import", str(phone), "--map", "gyro=angular_velocity[3:6]", "-o", str(out))
-    assert bench_err(res).startswith(f"-o: {out} exists; choose another name or delete it")
+    assert one_error_line(res).startswith(f"-o: {out} exists; choose another name or delete it")
 
 
 def test_calibrate_and_diagnose_take_a_mapped_file(tmp_path):

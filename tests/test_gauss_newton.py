@@ -577,19 +577,20 @@ def test_tilt_column_reaches_the_accel_calibration_from_the_command_line(tmp_pat
 def test_tilt_metadata_and_the_rank_message_name_the_file(tmp_path, capsys):
     """`# tilt_deg: 90` reaches the method; one tilt cannot determine the fit, and the message says
     which file (it had no file prefix)."""
-    from tests.test_foreign_data import bench_err, bench_in_process
+    from tests.cli_output import one_error_line
+    from tests.test_foreign_data import bench_in_process
 
     ds = accel_dataset(tilts=(90.0,), tilt_as="meta")
     csv = tmp_path / "one_tilt.csv"
     _write_csv(csv, ds, ["time_s", "table_angle_deg", "gyro_x_dps", "accel_x_g", "accel_y_g", "accel_z_g"],
                meta={"tilt_deg": 90})
-    msg = bench_err(bench_in_process(capsys, "calibrate", "gauss-newton", str(csv), "--sensor", "accel"))
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "gauss-newton", str(csv), "--sensor", "accel"))
     assert msg.startswith(f"{csv}: the positions do not determine bias, sensitivity, azimuth and coning "
                           "(the input vectors and a constant span only 3 of the 4 needed directions)"), msg
     bad = tmp_path / "bad_tilt.csv"
     _write_csv(bad, ds, ["time_s", "table_angle_deg", "gyro_x_dps", "accel_x_g", "accel_y_g", "accel_z_g"],
                meta={"tilt_deg": "steep"})
-    msg = bench_err(bench_in_process(capsys, "calibrate", "gauss-newton", str(bad), "--sensor", "accel"))
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "gauss-newton", str(bad), "--sensor", "accel"))
     assert msg == f"{bad}:1: tilt_deg: expected a number in deg, got 'steep'"
 
 

@@ -128,6 +128,17 @@ def test_limits_in_three_layers_are_located(tmp_path: Path):
     assert any("(lab config)" in e for e in errs), errs
 
 
+def test_a_limit_end_given_in_other_units_is_within_the_limits():
+    """122 degF is 50 degC (50.000000000000014 after conversion): a set point at a limit's end, in any
+    unit, passes; one a hair beyond (0.01 degF, 0.0001 K) is refused (bench/procedure/limits.py, LIMIT_REL_TOL)."""
+    head = HEAD + "limits: {tvac: {set_point: [-20 degC, 50 degC]}}\nsteps:\n"
+    for at_end in ("122 degF", "-4 degF", "323.15 K", "253.15 K"):
+        parse_procedure(head + f"  - set_temperature: {{instrument: tvac, set_point: {at_end}}}\n")
+    for beyond in ("122.01 degF", "-4.01 degF", "323.1501 K"):
+        errs = errors_of(head + f"  - set_temperature: {{instrument: tvac, set_point: {beyond}}}\n")
+        assert any("is outside the tvac set_point limits -20..50 degC (procedure)" in e for e in errs), (beyond, errs)
+
+
 def test_step_needs_the_right_kind_of_instrument():
     errs = errors_of(HEAD + "steps:\n  - set_temperature: {instrument: rate_table, set_point: 20 degC}\n")
     assert any("is a rate_table; this step needs a tvac" in e for e in errs), errs

@@ -44,10 +44,20 @@ def test_the_lab_limits_narrow_what_is_safe(tmp_path: Path) -> None:
     assert "-20..50 degC (lab config)" in str(exc.value)
 
 
-@pytest.mark.parametrize("safe, degc", [("25 degC", 25.0), ("298.15 K", 25.0), ("-20 degC", -20.0), ("104 degF", 40.0)])
+@pytest.mark.parametrize("safe, degc", [("25 degC", 25.0), ("298.15 K", 25.0), ("-20 degC", -20.0), ("104 degF", 40.0),
+                                        ("122 degF", 50.0), ("-4 degF", -20.0), ("323.15 K", 50.0)])
 def test_a_safe_set_point_within_the_limits_loads(tmp_path: Path, safe: str, degc: float) -> None:
     """Within the lab's limits (their ends included) the set point loads, in degC whatever unit it was given in."""
     assert _load(tmp_path, safe, "    limits: {set_point: [-20 degC, 50 degC]}\n") == pytest.approx(degc, abs=1e-9)
+
+
+@pytest.mark.parametrize("safe", ["122.001 degF", "50.0001 degC", "-4.001 degF"])
+def test_just_beyond_a_limit_in_other_units_is_still_refused(tmp_path: Path, safe: str) -> None:
+    """The tolerance that lets ``122 degF`` (50.000000000000014 degC after conversion) meet a 50 degC
+    limit is the rounding of a conversion (relative 1e-9), not a margin: 0.001 degF beyond is refused."""
+    with pytest.raises((InputError, InputErrors)) as exc:
+        _load(tmp_path, safe, "    limits: {set_point: [-20 degC, 50 degC]}\n")
+    assert "-20..50 degC (lab config)" in str(exc.value)
 
 
 def test_without_a_safe_set_point_the_chamber_goes_to_the_room(tmp_path: Path) -> None:

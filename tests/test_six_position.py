@@ -22,9 +22,10 @@ import yaml
 from bench.analysis.dataset import Dataset
 from bench.analysis.six_position import STATIC, calibrate
 from bench.errors import InputError
+from tests.cli_output import one_error_line
 from tests.conftest import ROOT
 from tests.ferraris_session import FS_HZ, TRUTH, make_session
-from tests.test_foreign_data import bench_err, bench_in_process
+from tests.test_foreign_data import bench_in_process
 
 G_MS2 = 9.80665
 MAPPING = ROOT / "configs" / "mappings" / "imucal.yaml"
@@ -239,37 +240,37 @@ def test_bad_section_lists_are_located(tmp_path, capsys):
     for text, start in cases:
         lst = tmp_path / "l.yaml"
         lst.write_text(text)
-        msg = bench_err(bench_in_process(capsys, "calibrate", "six-position", str(csv), "--sections", str(lst)))
+        msg = one_error_line(bench_in_process(capsys, "calibrate", "six-position", str(csv), "--sections", str(lst)))
         assert msg.startswith(str(tmp_path / start.split(":")[0]) + start[len(start.split(":")[0]):]), (text, msg)
     assert ": x_rot: turns " in msg and "not a rotation (give angle_deg in the section list" in msg, msg  # the last case
     lst = tmp_path / "l.csv"
     lst.write_text(",start,end\nx_p,10,x\n")
-    msg = bench_err(bench_in_process(capsys, "calibrate", "six-position", str(csv), "--sections", str(lst)))
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "six-position", str(csv), "--sections", str(lst)))
     assert msg.startswith(f"{lst}:2: x_p.end: expected a number, got 'x'"), msg
-    msg = bench_err(bench_in_process(capsys, "calibrate", "noise", str(csv), "--sections", str(lst)))
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "noise", str(csv), "--sections", str(lst)))
     assert msg == "--sections: --sections applies to the six-position method only"
 
 
 def test_bad_data_is_located(tmp_path, capsys):
     gyro_only = tmp_path / "g.csv"
     gyro_only.write_text("time_s,gyro_x_dps\n0,1\n1,2\n")
-    msg = bench_err(bench_in_process(capsys, "calibrate", "six-position", str(gyro_only)))
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "six-position", str(gyro_only)))
     assert msg.startswith(f"{gyro_only}: a six-position calibration needs columns accel_x_g"), msg
     still = tmp_path / "still.csv"  # one face only: what was found is listed
     still.write_text("time_s,gyro_x_dps,gyro_y_dps,gyro_z_dps,accel_x_g,accel_y_g,accel_z_g\n" +
                      "\n".join(f"{i / 100},0.01,0,0,0,0,1" for i in range(500)) + "\n")
-    msg = bench_err(bench_in_process(capsys, "calibrate", "six-position", str(still)))
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "six-position", str(still)))
     assert msg.startswith(f"{still}: sections: cannot find x_p, x_a, y_p, y_a, z_a, x_rot, y_rot, z_rot in the data "
                           "(still stretches found: z_p 0.0-5.0 s)"), msg
     imucal_csv = tmp_path / "i.csv"
     imucal_csv.write_text("n_samples,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n0,1,2,3,4,5,6\n1,1,n/a,3,4,5,6\n")
-    msg = bench_err(bench_in_process(capsys, "calibrate", "six-position", str(imucal_csv), "--map", str(MAPPING),
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "six-position", str(imucal_csv), "--map", str(MAPPING),
                                      "--map", "sample_rate_hz=100"))
     assert msg == f"{imucal_csv}:3: gyr_y: expected a number, got 'n/a'"
-    msg = bench_err(bench_in_process(capsys, "calibrate", "six-position", str(imucal_csv), "--map",
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "six-position", str(imucal_csv), "--map",
                                      "gyro=gyr_x,gyr_q,gyr_z:deg/s", "--map", "sample_rate_hz=100"))
     assert msg.startswith(f"{imucal_csv}:1: mapping entry 'gyro': no column 'gyr_q' in the CSV header"), msg
-    msg = bench_err(bench_in_process(capsys, "calibrate", "six-position", str(imucal_csv), "--map",
+    msg = one_error_line(bench_in_process(capsys, "calibrate", "six-position", str(imucal_csv), "--map",
                                      "gyro=gyr_x,gyr_y,gyr_z", "--map", "sample_rate_hz=100"))
     assert "units are needed: a CSV column has no units attribute" in msg
 

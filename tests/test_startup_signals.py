@@ -178,3 +178,66 @@ def test_start_run_interrupted_while_opening_the_lab_finalises_the_file(tmp_path
     s = read_run_summary(path)
     assert s.status == "aborted"
     assert s.abort_reason == "stopped during start-up by KeyboardInterrupt (while opening the instruments)"
+
+
+FINALISER_SCRIPT = """
+import gc, os, signal, sys, time, weakref
+
+import bench.cli
+from bench.__main__ import entry
+
+where = sys.argv[1]
+
+
+def stop_inside_a_finaliser():
+    os.kill(os.getpid(), signal.SIGTERM)
+    for _ in range(100_000):  # the handler runs here, inside the finaliser
+        pass
+
+
+class Held:
+    def __del__(self):
+        if where == "__del__ in a GC cycle":
+            stop_inside_a_finaliser()
+
+
+class Unrelated:
+    def __del__(self):
+        raise ValueError("an unrelated finaliser error")  # must still be reported by Python
+
+
+def main(argv=None):
+    Unrelated()
+    if where == "weakref callback":
+        obj = Held()
+        weakref.finalize(obj, stop_inside_a_finaliser)
+        del obj  # the callback runs here (reference count)
+    else:
+        a, b = Held(), Held()
+        a.other, b.other = b, a  # a cycle: only the garbage collector frees it
+        del a, b
+        gc.collect()
+    time.sleep(20)  # the start-up goes on (a blocking call): the stop must land in it
+    print("the stop signal was lost", flush=True)
+    return 0
+
+
+bench.cli.main = main
+sys.exit(entry())
+"""
+
+
+@pytest.mark.parametrize("where", ["weakref callback", "__del__ in a GC cycle"])
+def test_a_stop_signal_inside_a_finaliser_ends_as_documented(tmp_path: Path, where: str) -> None:
+    """A stop signal handled while Python runs a finaliser (a weakref callback, ``__del__`` run by the
+    garbage collector: SQLAlchemy and h5py clean up that way) used to raise there, where Python prints
+    "Exception ignored … Traceback" and drops the exception, and the stop was lost. Now: the documented
+    line and exit 1, and an unrelated finaliser's error is still reported."""
+    script = tmp_path / "finaliser.py"
+    script.write_text(FINALISER_SCRIPT)
+    r = subprocess.run([sys.executable, str(script), where], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and r.stdout == "", (r.returncode, r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert lines[-1] == "bench: stopped during start-up by SIGTERM; no run file was created", r.stderr
+    assert "StoppedDuringStartup" not in r.stderr and "stopped during start-up" not in "\n".join(lines[:-1]), r.stderr
+    assert "ValueError: an unrelated finaliser error" in r.stderr  # other unraisable errors: Python's own report

@@ -63,7 +63,8 @@ class Progress:
     def __call__(self, message: str) -> None:
         with self._lock:
             self.message = message
-            self._maybe_emit()
+            if not self._stop.is_set():
+                self._maybe_emit()
 
     def _maybe_emit(self) -> None:
         now = self.clock()
@@ -93,7 +94,14 @@ class Progress:
     def _beat(self) -> None:
         interval = TTY_INTERVAL_S * 5 if self.tty else LOG_INTERVAL_S
         while not self._stop.wait(interval):
-            with self._lock:
+            self._tick()
+
+    def _tick(self) -> None:
+        """One heartbeat. Checked under the lock: once :meth:`close` has run, nothing more is
+        written, even by a heartbeat thread that woke too late for ``close``'s join (a loaded
+        machine), so the command's own last line (an error, a result) stays the last."""
+        with self._lock:
+            if not self._stop.is_set():
                 self._maybe_emit()
 
     def close(self) -> None:

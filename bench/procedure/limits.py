@@ -8,6 +8,7 @@ the step, so nothing moves.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from bench.errors import InputError
@@ -45,6 +46,25 @@ STEP_LIMITS: dict[str, list[tuple[str, str, str]]] = {
     "configure": [("odr", "acs_board", "odr")],
 }
 """Step type -> (field, driver, limited quantity)."""
+
+
+LIMIT_REL_TOL = 1e-9
+"""Relative tolerance of every limit check: a value within this fraction of a limit (or within
+:data:`LIMIT_ABS_TOL` of a limit at or near 0) is at the limit, not beyond it. Unit conversion is
+not exact in binary floating point: ``122 degF`` is 50.000000000000014 degC, and must pass a 50 degC
+limit as ``50 degC`` does. Far below any instrument's resolution (a 100 degC limit: 1e-7 degC)."""
+LIMIT_ABS_TOL = 1e-12
+"""Absolute tolerance of every limit check, in the limit's units (for limits at 0)."""
+
+
+def outside_limits(value: float, lo: float | None, hi: float | None) -> bool:
+    """True when ``value`` is below ``lo`` or above ``hi`` (None: open end) by more than the
+    rounding of a unit conversion (:data:`LIMIT_REL_TOL`): the one comparison of a value with its
+    limits, for the steps of a procedure and the config's safe values alike."""
+    def beyond(v: float, bound: float) -> bool:
+        return not math.isclose(v, bound, rel_tol=LIMIT_REL_TOL, abs_tol=LIMIT_ABS_TOL)
+
+    return (lo is not None and value < lo and beyond(value, lo)) or (hi is not None and value > hi and beyond(value, hi))
 
 
 def parse_limit(node: Node, units: str, name: str, errors: list[InputError]) -> tuple[float | None, float | None] | None:
@@ -123,7 +143,7 @@ def check_step_limits(steps, kinds: dict[str, str], config_limits: dict[str, dic
             lo, hi, src = bounds
             v = float(step.params[fname])
             units = LIMIT_UNITS[kind][quantity]
-            if (lo is not None and v < lo) or (hi is not None and v > hi):
+            if outside_limits(v, lo, hi):
                 rng = f"{'-inf' if lo is None else f'{lo:g}'}..{'inf' if hi is None else f'{hi:g}'} {units}"
                 errors.append(InputError(f"step {step.path} ({step.type}): {v:g} {units} is outside the {inst} {quantity} limits {rng} ({src})",
                                          step.location, fname))
