@@ -103,11 +103,11 @@ class ThermocoupleReader(Driver):
                 scan.temps_c[ch] = v
         return scan
 
-    def monitor_columns(self) -> list[tuple[str, str]]:
-        """Configure the monitored channels (if not configured yet) and name one column per channel."""
+    def monitor_columns(self) -> list[str]:
+        """Configure the monitored channels (if not configured yet) and name one column per channel (degC)."""
         if not self.channels:
             self.configure(self.monitor_channels, self.tc_type)
-        return [(f"ch{c}", "degC") for c in self.channels]
+        return [f"ch{c}" for c in self.channels]
 
     def monitor(self) -> dict[str, float]:
         """One scan, °C per channel column; an open thermocouple reads NaN."""

@@ -136,7 +136,7 @@ def test_sim_config_loads():
     inst = c.instruments["acs_board"]
     assert inst.baudrate == 115200 and inst.timeout_s == pytest.approx(0.5)
     assert c.world.latitude_deg == pytest.approx(36.4)
-    assert inst.sim.model.gyro_noise_density_dps_rthz == pytest.approx(0.005)
+    assert inst.sim.settings.model.gyro_noise_density_dps_rthz == pytest.approx(0.005)
 
 
 @pytest.mark.parametrize("name", ["sim.yaml", "sim_rotating_bench.yaml", "lab.example.yaml"])
