@@ -93,12 +93,27 @@ def add_analysis_parsers(sub: argparse._SubParsersAction) -> None:
     _add_map_option(d)
     d.add_argument("--model", type=Path, default=None,
                    help="sensor model YAML whose known terms join the baseline (configs/sensors/NAME.yaml or an earlier -o output; default: the baseline alone)")
+    d.add_argument("--power-on-at", type=_seconds, default=None, metavar="TIME",
+                   help="when the data have no power_on_s column: the time (s, on the data's time axis) the sensor was "
+                        "powered on, at or before the first row (default: the # power_on_at_s metadata, else the "
+                        "warm-up is not searched)")
     d.add_argument("--json", action="store_true", help="print the findings as JSON (default: a summary)")
     d.add_argument("--report", type=Path, default=None,
                    help="write an HTML page with the evidence (default: none; an existing file only with --force)")
     d.add_argument("-o", "--output", type=Path, default=None,
                    help="write the extended sensor model YAML (default: none; an existing file only with --force)")
     add_force(d)
+
+
+def _seconds(text: str) -> float:
+    """A finite number of seconds (``--power-on-at``)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a time in s, got {text!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite time in s, got {text!r}")
+    return v
 
 
 def _add_map_option(p: argparse.ArgumentParser) -> None:
@@ -196,7 +211,8 @@ def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
         raise InputError("--report and -o name the same file; give two names", None, "-o")
     info = _info_console(args, console)
     with Progress("diagnose") as say:
-        result, ds = diagnose_file(args.data, args.map, args.model, progress=say, on_note=_note_on_stderr)
+        result, ds = diagnose_file(args.data, args.map, args.model, progress=say, on_note=_note_on_stderr,
+                                   power_on_at=args.power_on_at)
     if args.json:
         print(json_text(result.json))
     else:

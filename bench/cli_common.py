@@ -62,13 +62,23 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+LAB_CONFIG = "configs/lab.yaml"
+"""The lab config the examples name: each lab makes its own (it is not in the repository)."""
+LAB_CONFIG_NOTE = (f"{LAB_CONFIG} is your lab's config: make it with 'bench lab init -o {LAB_CONFIG}' (an example of a real "
+                   "lab: configs/lab.example.yaml); configs/sim.yaml is the simulated lab every dry-run (--sim) can use.")
+"""Said under every ``--help`` whose examples name :data:`LAB_CONFIG`."""
+
+
 def epilog(*examples: str, ok: str, failed: str = INTERNAL, bad: str = BAD_INPUT, notes: str = "") -> str:
     """The end of a command's ``--help``: optional notes, its exit codes, one example per line.
 
     ``ok``, ``failed`` and ``bad`` say what exit codes 0, 1 and 2 mean for this command. Notes and
-    exit codes are wrapped to the terminal; examples never are.
+    exit codes are wrapped to the terminal; examples never are. Examples that name
+    :data:`LAB_CONFIG` (which each lab makes) get :data:`LAB_CONFIG_NOTE` under them.
     """
     width = max(60, min(shutil.get_terminal_size().columns, 120) - 2)
+    if any(LAB_CONFIG in e for e in examples) and "bench lab init" not in notes:
+        notes = f"{notes} {LAB_CONFIG_NOTE}".strip()
     lines = textwrap.wrap(notes, width) + [""] if notes else []
     lines.append("exit codes:")
     for code, text in (("0", ok), ("1", failed), ("2", bad)):

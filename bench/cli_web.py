@@ -77,11 +77,13 @@ def cmd_serve(args: argparse.Namespace, console: Console) -> int:
     if args.runs_dir.exists() and not args.runs_dir.is_dir():
         raise InputError(f"{args.runs_dir}: not a directory", None, "--runs-dir")
     catalog = args.catalog
+    operators: tuple[str, ...] = ()
     if args.config is not None:
         from bench.cli_catalog import run_catalog
         from bench.config import load_config
 
-        catalog = run_catalog(args.catalog, load_config(args.config))
+        lab = load_config(args.config)
+        catalog, operators = run_catalog(args.catalog, lab), lab.operators
     elif catalog:
         from bench.catalog.store import resolve_url
 
@@ -95,12 +97,11 @@ def cmd_serve(args: argparse.Namespace, console: Console) -> int:
 
     import uvicorn
 
-    from bench.record.skeleton import login_name
     from bench.web.app import Station, create_app
 
     station = Station(runs_dir=args.runs_dir.resolve(), library=args.procedures.resolve(), token=token,
                       config=args.config.resolve() if args.config else None,
-                      sim_config=sim_config.resolve() if sim_config.is_file() else None, catalog=catalog, operator_name=login_name())
+                      sim_config=sim_config.resolve() if sim_config.is_file() else None, catalog=catalog, operators=operators)
     host, port = sock.getsockname()[:2]
     shown = f"[{host}]" if ":" in host else host
     print(f"bench serve: http://{shown}:{port}/", flush=True)

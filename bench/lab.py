@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 from bench.clock import Clock, VirtualClock, WallClock
 from bench.config import InstrumentConfig, LabConfig
-from bench.errors import InputError
+from bench.errors import BenchError, InputError, InputErrors
 from bench.kinds import registry as kinds
 from bench.sim import registry
 from bench.sim.factory import TRANSPORTS, SimInstrument, build_devices, serial_url
@@ -125,12 +125,13 @@ def power_order(config: LabConfig, names: list[str]) -> list[str]:
 
 
 def open_drivers(lab: "Lab", config: LabConfig, names: list[str], kwargs: dict[str, dict[str, Any]],
-                 on_traffic: "TrafficSink | None") -> None:
+                 on_traffic: "TrafficSink | None", *, explain: bool = False) -> None:
     """Open the driver of each of ``names`` on ``lab.ports`` (filling ``lab.instruments`` and
     ``lab.openers``), a supply before what it powers; before a powered instrument is opened, its
     supply's output is switched on as the config sets it (``power_up``), so the unit answers when
     identified. The same for a run, a dry-run and a replay (the replay's backends answer the same
-    exchanges)."""
+    exchanges). ``explain``: a failure is an :class:`InstrumentOpenError` naming the instrument with
+    what to do (a real lab), else the driver's error as it is."""
     for name in power_order(config, names):
         inst = config.instruments[name]
         link = inst.powered_by
@@ -143,7 +144,15 @@ def open_drivers(lab: "Lab", config: LabConfig, names: list[str], kwargs: dict[s
         opener = (lambda c, url, i, h, kw: (lambda: c.open(url, baudrate=i.baudrate, timeout_s=i.timeout_s, on_traffic=h, **kw)))(
             driver_class(inst), lab.ports[name], inst, hook, kwargs[name])
         lab.openers[name] = opener
-        lab.instruments[name] = opener()
+        try:
+            lab.instruments[name] = opener()
+        except Exception as exc:
+            if not explain:
+                raise
+            from bench.instruments_check import diagnose_failure
+
+            problem, hint = diagnose_failure(inst, exc)
+            raise InstrumentOpenError(name, problem, hint, exc) from exc
 
 
 def describe_lab(lab: Lab, config: LabConfig, names: list[str]) -> None:
@@ -156,11 +165,41 @@ def describe_lab(lab: Lab, config: LabConfig, names: list[str]) -> None:
                       and config.instruments[name].powered_by.instrument in names}
 
 
+class InstrumentOpenError(BenchError):
+    """An instrument of a real lab could not be opened or identified: the message names it, says
+    what was seen and what to do, as ``bench instruments check`` does (``instrument``, ``cause``)."""
+
+    def __init__(self, instrument: str, problem: str, hint: str, cause: BaseException):
+        super().__init__(f"{instrument}: {problem}" + (f" → {hint}" if hint else ""))
+        self.instrument, self.problem, self.hint, self.cause = instrument, problem, hint, cause
+
+
+def check_ports(config: LabConfig, names: list[str]) -> None:
+    """Before a real run creates anything: every serial device and CAN interface the instruments
+    ``names`` use must be there and usable (``bench instruments check``'s pre-flight). Raises
+    :class:`InputErrors` located at each instrument's entry of the config, naming it, with the hint."""
+    from bench.instruments_check import preflight
+
+    errors = []
+    for name in names:
+        inst = config.instruments.get(name)
+        if inst is None:
+            continue
+        seen = preflight(inst)
+        if seen is not None:
+            problem, hint = seen
+            errors.append(InputError(f"{problem} → {hint}", inst.location, name))
+    if errors:
+        raise InputErrors(errors)
+
+
 def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, on_traffic: TrafficSink | None = None) -> Lab:
     """Open the instruments ``names`` of ``config``.
 
     ``sim``: simulators behind the drivers, on a virtual clock unless ``realtime``. Raises
-    :class:`InputError` for an instrument missing from the config or without a ``sim`` section.
+    :class:`InputError` for an instrument missing from the config or without a ``sim`` section,
+    :class:`InstrumentOpenError` (naming the instrument, with the hint) for a real instrument that
+    cannot be opened or identified.
     """
     for name in names:
         if name not in config.instruments:
@@ -192,7 +231,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
     describe_lab(lab, config, names)
     lab.safe_state_timeouts = {name: config.instruments[name].safe_state_timeout_s for name in names}
     try:
-        open_drivers(lab, config, names, kwargs, on_traffic)
+        open_drivers(lab, config, names, kwargs, on_traffic, explain=not sim)
     except Exception:
         lab.close()
         raise

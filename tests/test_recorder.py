@@ -160,7 +160,7 @@ def test_round_trip(tmp_path: Path) -> None:
     console = Console(record=True, width=200)
     render_summary(s, console)
     out = console.export_text()
-    for text in ("startup_profile", "completed", "acs_board", "100.00", "gyro[3] (deg/s)", "built-in test", "failed",
+    for text in ("startup_profile", "completed", "acs_board", "100 Hz", "gyro[3] (deg/s)", "built-in test", "failed",
                  "acs_board: 1 command, 0 replies, last at 0:00:10", "step_end 2"):
         assert text in out, text
     assert "aa 21 00" not in out  # instrument traffic is summarised, not listed ...

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.csvsrc import numeric_columns, read_csv_table
+from bench.csvsrc import read_numeric_table
 from bench.errors import InputError, Location
 
 COLUMNS: dict[str, str] = {
@@ -196,24 +196,33 @@ def is_hdf5(p: Path) -> bool:
 
 # ---- CSV ----------------------------------------------------------------------------------------
 def dataset_from_csv(path: str | Path) -> Dataset:
-    """Load a measured-data CSV (see module docstring); :class:`InputError` names file:line and column."""
-    table = read_csv_table(path)
+    """Load a measured-data CSV (see module docstring); :class:`InputError` names file:line and column.
+    Read block by block into float arrays (:func:`bench.csvsrc.read_numeric_table`)."""
+    problem: list[InputError] = []
+
+    def wanted(header: list[str]) -> list[str]:
+        present = [c for c in COLUMNS if c in header]
+        if "time_s" not in present:
+            problem.append(InputError(f"missing required column (header has: {', '.join(header) or 'nothing'})",
+                                      None, "time_s"))
+        elif not any(GYRO[a] in present for a in AXES):
+            problem.append(InputError("expected at least one gyro column (gyro_x_dps, gyro_y_dps or gyro_z_dps)", None))
+        return present if not problem else []
+
+    table = read_numeric_table(path, wanted)
     where = Location(table.path, table.header_line)
-    present = [c for c in COLUMNS if c in table.header]
-    if "time_s" not in present:
-        raise InputError(f"missing required column (header has: {', '.join(table.header) or 'nothing'})", where, "time_s")
-    if not any(GYRO[a] in present for a in AXES):
-        raise InputError("expected at least one gyro column (gyro_x_dps, gyro_y_dps or gyro_z_dps)", where)
+    if problem:
+        raise InputError(problem[0].message, where, problem[0].field)
     if not table.rows:
         raise InputError("no data rows after the header", where)
-    values = numeric_columns(table, present)
+    values = table.columns
     t = values["time_s"]
     bad = np.nonzero(np.diff(t) <= 0)[0]
     if bad.size:
         i = int(bad[0]) + 1
         raise InputError(f"time must increase from row to row: {float(t[i])!r} s follows {float(t[i - 1])!r} s",
-                         Location(table.path, table.lines[i]), "time_s")
-    return Dataset(values, csv_meta(table), str(table.path), np.array(table.lines, dtype=np.int64))
+                         Location(table.path, int(table.lines[i])), "time_s")
+    return Dataset(values, csv_meta(table), str(table.path), np.asarray(table.lines, dtype=np.int64))
 
 
 def csv_meta(table) -> dict[str, float | str]:

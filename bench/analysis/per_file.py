@@ -99,15 +99,17 @@ def calibrate_file(method: str, data: Path, mapping: Sequence[str] | None = None
 
 
 def diagnose_file(data: Path, mapping: Sequence[str] | None = None, model: Path | None = None,
-                  *, progress: Say = _quiet, on_note: Say = _quiet) -> tuple["DiagnoseResult", "Dataset"]:
+                  *, progress: Say = _quiet, on_note: Say = _quiet,
+                  power_on_at: float | None = None) -> tuple["DiagnoseResult", "Dataset"]:
     """Diagnose the file ``data`` against the baseline sensor model (plus ``model``'s known terms):
-    the result and the dataset it was made from (for :func:`bench.analysis.diagnose.write_report`)."""
+    the result and the dataset it was made from (for :func:`bench.analysis.diagnose.write_report`).
+    ``power_on_at``: the power-on time (s) of data without a ``power_on_s`` column."""
     from bench.analysis.diagnose import diagnose
 
     progress(f"reading {data}")
     ds = load_checked(Path(data), mapping, on_note=on_note)
     progress(f"{len(ds):,} rows read, preparing")
-    return diagnose(ds, model_path=str(model) if model else None, progress=progress), ds
+    return diagnose(ds, model_path=str(model) if model else None, progress=progress, power_on_at=power_on_at), ds
 
 
 def rows_line(result: "DiagnoseResult") -> str | None:

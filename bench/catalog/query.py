@@ -38,6 +38,8 @@ class RunFilter:
     station: str | None = None
     status: str | None = None
     verdict: str | None = None
+    mode: str | None = None
+    """Stored mode (``hardware``, ``sim``, ``replay``, ``imported``; :func:`parse_mode`)."""
     since: datetime | None = None
     vacuum_below_torr: float | None = None
     limit: int | None = None
@@ -70,6 +72,17 @@ def parse_verdict(value: str | None, field: str = "--verdict") -> str | None:
     if v not in VERDICTS:
         raise InputError(f"expected one of {', '.join(VERDICTS)} (or no-verdict), got {value!r}", None, field)
     return v
+
+
+def parse_mode(value: str | None, field: str = "--mode") -> str | None:
+    """A mode filter: ``real`` (or ``hardware``), ``dry-run`` (or ``sim``), ``replay``, ``imported``
+    (:data:`bench.run_mode.FILTER_ALIASES`), as the stored mode."""
+    from bench.run_mode import parse_mode as parse
+
+    try:
+        return parse(value)
+    except ValueError as exc:
+        raise InputError(str(exc), None, field) from None
 
 
 def parse_since(value: str | None, now: datetime | None = None, field: str = "--since") -> datetime | None:
@@ -138,6 +151,8 @@ def select_runs(f: RunFilter) -> sa.Select:
         stmt = stmt.where(runs.c.status == f.status)
     if f.verdict is not None:
         stmt = stmt.where(runs.c.verdict == f.verdict)
+    if f.mode is not None:
+        stmt = stmt.where(runs.c.mode == f.mode)
     if f.since is not None:
         stmt = stmt.where(runs.c.started_utc >= f.since)
     if f.vacuum_below_torr is not None:

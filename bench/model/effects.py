@@ -57,6 +57,9 @@ Vocabulary (equations in ``docs/diagnose.md``; defaults cite the seeds, [U] = as
 * ``scale_factor_nonlinearity``: k2·ω² + k3·ω³ (IEEE Std 1431 scale-factor nonlinearity). Default 0.
 * ``bias_instability``: flicker bias noise, Allan plateau 0.664·B (IEEE Std 952 C.1.3), by the gyro
   model's sum of Gauss-Markov processes; default B = 1.92 deg/h (NPSAT1 Table 13, X).
+* ``gauss_markov``: exponentially correlated (first-order Markov) bias noise of standard deviation σ
+  and correlation time τ_c (IEEE Std 952 C.1.6 "correlated noise"; the hump of a MEMS Allan curve).
+  Default σ = 0: the seeds give no amplitude.
 
 A term is added in one place, :func:`register` (parameters, forward function, inputs); its
 diagnose candidate joins with ``bench.analysis.diagnose.terms.register``.
@@ -216,6 +219,14 @@ class BiasInstabilityParams:
     tau_max_s: float = 1.0e4
 
 
+@dataclass
+class GaussMarkovParams:
+    """First-order Gauss-Markov bias noise: variance ``sigma_dps``², correlation e^(−|Δt|/τ_c)."""
+
+    sigma_dps: float = 0.0
+    tau_s: float = 100.0
+
+
 PARAMS: dict[str, type] = {
     "thermal_lag": ThermalLagParams,
     "warmup_transient": WarmupTransientParams,
@@ -232,6 +243,7 @@ PARAMS: dict[str, type] = {
     "periodic": PeriodicParams,
     "scale_factor_nonlinearity": ScaleFactorNonlinearityParams,
     "bias_instability": BiasInstabilityParams,
+    "gauss_markov": GaussMarkovParams,
 }
 """The vocabulary: effect name -> parameter dataclass (grown with :func:`register`)."""
 
@@ -253,6 +265,7 @@ NEEDS: dict[str, tuple[str, ...]] = {
     "periodic": (),
     "scale_factor_nonlinearity": (),
     "bias_instability": (),
+    "gauss_markov": (),
 }
 """Input attributes each effect reads besides ``time_s`` and ``rate_dps``."""
 
@@ -521,20 +534,35 @@ def flicker_noise(t: np.ndarray, b_dps: float, tau_min_s: float, tau_max_s: floa
     out = np.zeros(n)
     if n == 0 or b_dps == 0:
         return out
-    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
     taus, per_b = flicker_processes(tau_min_s, tau_max_s)
     q = abs(b_dps) * per_b
     for tc in taus:
-        a = math.exp(-dt / tc)
-        w = rng.standard_normal(n) * q * math.sqrt(1.0 - a * a)
-        w[0] = rng.standard_normal() * q  # stationary start
-        out += lfilter([1.0], [1.0, -a], w)
+        out += gauss_markov_noise(t, q, float(tc), rng)  # each from its stationary start
     return out * (1.0 if b_dps > 0 else -1.0)
 
 
 def _bias_instability(p: BiasInstabilityParams, inp: InputsLike, k: int, t: np.ndarray, rng) -> np.ndarray:
     rng = rng if rng is not None else np.random.default_rng()
     return flicker_noise(t, p.b_dps, p.tau_min_s, p.tau_max_s, rng)
+
+
+def gauss_markov_noise(t: np.ndarray, sigma_dps: float, tau_s: float, rng: np.random.Generator) -> np.ndarray:
+    """A stationary first-order Gauss-Markov process of standard deviation ``sigma_dps`` and
+    correlation time ``tau_s`` at sample times ``t`` (exact AR(1) at the median interval)."""
+    t = np.asarray(t, dtype=float)
+    n = t.shape[0]
+    if n == 0 or sigma_dps == 0:
+        return np.zeros(n)
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    a = math.exp(-dt / tau_s)
+    w = rng.standard_normal(n) * sigma_dps * math.sqrt(1.0 - a * a)
+    w[0] = rng.standard_normal() * sigma_dps
+    return lfilter([1.0], [1.0, -a], w)
+
+
+def _gauss_markov(p: GaussMarkovParams, inp: InputsLike, k: int, t: np.ndarray, rng) -> np.ndarray:
+    rng = rng if rng is not None else np.random.default_rng()
+    return gauss_markov_noise(t, p.sigma_dps, p.tau_s, rng)
 
 
 _FORWARD: dict[str, Callable[..., np.ndarray]] = {
@@ -551,6 +579,7 @@ _FORWARD: dict[str, Callable[..., np.ndarray]] = {
     "periodic": _periodic,
     "scale_factor_nonlinearity": _sf_nonlinear,
     "bias_instability": _bias_instability,
+    "gauss_markov": _gauss_markov,
 }
 
 
@@ -637,6 +666,8 @@ def _check(name: str, p: Any) -> None:
         raise ValueError("k_dps_per_sqrt_s must be >= 0")
     if name == "periodic" and not p.frequency_hz > 0:
         raise ValueError(f"frequency_hz must be > 0 Hz, got {p.frequency_hz!r}")
+    if name == "gauss_markov" and not (p.tau_s > 0 and p.sigma_dps >= 0):
+        raise ValueError("gauss_markov needs tau_s > 0 s and sigma_dps >= 0")
     if name == "bias_instability" and not 0 < p.tau_min_s < p.tau_max_s:
         raise ValueError("tau_min_s and tau_max_s must satisfy 0 < tau_min_s < tau_max_s")
     if name == "earth_rate" and not -90 <= p.latitude_deg <= 90:

@@ -79,8 +79,13 @@ ATTR_UNIT_REVISION = "unit_revision"
 """Revision of the unit under test (``--revision``); ``""`` when not given."""
 ATTR_STATION = "station"
 """Name of the test station (lab config ``station:``; default the host name)."""
+ATTR_OPERATOR_ORIGIN = "operator_origin"
+"""Where the operator's name came from: ``cli LOGIN@TTY`` or ``web ADDRESS`` (bench.operators); absent in
+older files, read as ``""``."""
 IDENTITY_ATTRS = (ATTR_UNIT_SERIAL, ATTR_UNIT_PART, ATTR_UNIT_REVISION, ATTR_STATION)
 """Optional root attributes naming what was tested where."""
+CREATION_ATTRS = (*IDENTITY_ATTRS, ATTR_OPERATOR_ORIGIN)
+"""Optional root attributes a run file may be created with (``RunRecorder.create(identity=...)``)."""
 
 # identity of an instrument: attributes of /instruments/<name>. The instrument reports its own
 # (``identify()``: vendor, model, serial, firmware ... free-form); the lab config's declarations sit

@@ -131,15 +131,16 @@ class RunRecorder:
         ``operator`` defaults to the login name; ``started_utc`` to now. ``flush_interval_s`` is
         wall time (s) between flushes triggered by :meth:`tick`, measured with ``wall_clock``
         (seconds, monotonic). ``identity``: root attributes naming the unit under test and the
-        station (keys of :data:`~bench.record.layout.IDENTITY_ATTRS`; only those given are written).
+        station, and where the operator's name came from (keys of :data:`~bench.record.layout.CREATION_ATTRS`; only
+        those given are written).
         Raises :class:`DestinationError` if the directory cannot take the file,
         :class:`RecorderError` if writing it fails, ``ValueError`` for a bad ``mode`` or identity key.
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
-        unknown = sorted(set(identity or {}) - set(layout.IDENTITY_ATTRS))
+        unknown = sorted(set(identity or {}) - set(layout.CREATION_ATTRS))
         if unknown:
-            raise ValueError(f"identity keys must be among {', '.join(layout.IDENTITY_ATTRS)}, got {', '.join(unknown)}")
+            raise ValueError(f"identity keys must be among {', '.join(layout.CREATION_ATTRS)}, got {', '.join(unknown)}")
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s!r}")
         started = layout.as_utc(started_utc or datetime.now(timezone.utc))

@@ -53,7 +53,8 @@ class Station:
     config: Path | None = None
     sim_config: Path | None = None
     catalog: str | None = None
-    operator_name: str = "web"
+    operators: tuple[str, ...] = ()
+    """The lab config's ``operators:`` (empty: any name)."""
     runs: LiveRuns = field(default_factory=LiveRuns)
     cache: StreamCache = field(default_factory=StreamCache)
     live: LiveReader = field(default_factory=LiveReader)
@@ -102,7 +103,32 @@ def _int(request: Request, name: str, default: int) -> int:
 
 def origin(request: Request) -> str:
     """``web <client address>``: the origin recorded with each control action."""
-    return f"web {request.client.host if request.client else 'unknown'}"
+    from bench.operators import web_origin
+
+    return web_origin(request.client.host if request.client else "")
+
+
+def acting_person(station: "Station", body: dict, required: bool) -> str:
+    """The name of the person acting from the page (the body's ``operator``): checked as a run's
+    operator is, against the lab's list when it has one; ``""`` when not given and not ``required``
+    (a stop is never refused for want of a name)."""
+    from bench import operators
+
+    name = body.get("operator")
+    if (name is None or (isinstance(name, str) and not name.strip())) and not required:
+        return ""
+    return operators.resolve(name if isinstance(name, str) else str(name), station.operators, origin="", field="operator",
+                             required=True).name
+
+
+def unit_of(station: Station, request: Request) -> Any:
+    """The :class:`~bench.unit_history.UnitHistory` of the request's ``serial`` (and ``part``)."""
+    from bench.unit_history import unit_history
+    from bench.web.pages import add_uncatalogued
+
+    q = request.query_params
+    return unit_history(q.get("serial", ""), runs_dir=station.runs_dir, catalog=station.catalog, part=q.get("part") or None,
+                        prepare=lambda cat: add_uncatalogued(cat, station.runs_dir), field="serial")
 
 
 def create_app(station: Station) -> Starlette:
@@ -114,7 +140,7 @@ def create_app(station: Station) -> Starlette:
             try:
                 return await run_in_threadpool(fn, request)
             except (InputError, InputErrors) as exc:
-                missing = isinstance(exc, InputError) and exc.message.startswith("no run id")
+                missing = isinstance(exc, InputError) and exc.message.startswith(("no run id", "no catalogued run"))
                 return _errors(exc, 404 if missing else 400)
         return endpoint
 
@@ -148,9 +174,12 @@ def create_app(station: Station) -> Starlette:
         return run_path(station.runs_dir, request.query_params.get("id", ""))
 
     def api_session(_request: Request) -> Response:
+        from bench.web.launch import lab_description
+
         return _json({"runs_dir": str(station.runs_dir), "config": str(station.config) if station.config else None,
                       "dry_run_config": str(station.config or station.sim_config or "") or None,
-                      "real_lab": station.config is not None, "library": str(station.library)})
+                      "real_lab": station.config is not None, "library": str(station.library), "operators": list(station.operators),
+                      "lab": lab_description(station.config, station.sim_config)})
 
     def api_runs(request: Request) -> Response:
         table = runs_table(station.runs_dir, station.catalog, dict(request.query_params))
@@ -193,6 +222,19 @@ def create_app(station: Station) -> Starlette:
     def api_report(request: Request) -> Response:
         return HTMLResponse(station.report(path_of(request)))
 
+    def api_unit(request: Request) -> Response:
+        from bench.unit_history import history_json
+
+        return _json(history_json(unit_of(station, request)))
+
+    def api_unit_package(request: Request) -> Response:
+        from bench.report.unit_package import build_package
+
+        h = unit_of(station, request)
+        name = "".join(c if c.isalnum() or c in "-_." else "_" for c in h.serial)
+        return HTMLResponse(build_package(h), headers={**SECURITY_HEADERS,
+                                                       "Content-Disposition": f'attachment; filename="{name}_acceptance.html"'})
+
     def api_file(request: Request) -> Response:
         path = path_of(request)
         return FileResponse(path, filename=path.name, media_type="application/x-hdf5")
@@ -214,10 +256,10 @@ def create_app(station: Station) -> Starlette:
 
         req = StartRequest(procedure=str(body.get("procedure", "")), params=clean_params(body.get("params")),
                            unit=str(body.get("unit") or "").strip() or None, dry_run=bool(body.get("dry_run", True)),
-                           realtime=bool(body.get("realtime", True)), accept_overdue=bool(body.get("accept_overdue", False)))
+                           realtime=bool(body.get("realtime", True)), accept_overdue=bool(body.get("accept_overdue", False)),
+                           operator=str(body.get("operator") or ""), origin=origin(request))
         live = start(req, library_dir=station.library, config_path=station.config, sim_config=station.sim_config,
-                     runs_dir=station.runs_dir, catalog=station.catalog, runs=station.runs,
-                     operator_name=str(body.get("operator") or station.operator_name), busy=station.runs.busy_instruments())
+                     runs_dir=station.runs_dir, catalog=station.catalog, runs=station.runs, busy=station.runs.busy_instruments())
         return _json({"id": live.run_id, "file": live.path.name})
 
     def _live_or_error(body: dict) -> Any:
@@ -231,32 +273,37 @@ def create_app(station: Station) -> Starlette:
         return live
 
     def api_answer(request: Request, body: dict) -> Response:
+        from bench.web.live import check_answer
+
         live = _live_or_error(body)
-        text = body.get("answer")
-        if not isinstance(text, str) or not text.strip() or len(text) > 200:
-            raise InputError("expected an answer such as yes or no", None, "answer")
-        if not live.asker.answer(text.strip(), origin(request)):
+        text = check_answer(body.get("answer"), body.get("confirm_abort"))
+        person = acting_person(station, body, required=True)
+        if not live.asker.answer(text, origin(request), person):
             return _json({"errors": ["no question is waiting for an answer"]}, 409)
         return _json({"ok": True})
 
     def api_pause(request: Request, body: dict) -> Response:
         live = _live_or_error(body)
+        person = acting_person(station, body, required=False)
         want = bool(body.get("paused", not live.runner.paused))
         if want != live.runner.paused:
             live.runner.operator_event("pause" if want else "resume", origin(request),
-                                       f"{'pause' if want else 'resume'} requested from the web station")
+                                       f"{'pause' if want else 'resume'} requested from the web station", operator=person)
             live.runner.toggle_pause()
         return _json({"ok": True, "paused": want})
 
     def api_stop(request: Request, body: dict) -> Response:
         live = _live_or_error(body)
+        person = acting_person(station, body, required=False)
         who = origin(request)
-        live.runner.operator_event("stop", who, "stop requested from the web station")
-        live.runner.request_abort(f"operator stop from the web station ({who})")
+        live.runner.operator_event("stop", who, "stop requested from the web station", operator=person)
+        live.runner.request_abort(f"operator stop from the web station ({who})" + (f" by {person}" if person else ""))
         return _json({"ok": True})
 
     routes = [
-        Route("/", page), Route("/run", page), Route("/start", page),
+        Route("/", page), Route("/run", page), Route("/start", page), Route("/unit", page),
+        Route("/api/unit", guarded(api_unit)),
+        Route("/api/unit_package", guarded(api_unit_package)),
         Route("/api/session", guarded(api_session)),
         Route("/api/runs", guarded(api_runs)),
         Route("/api/run", guarded(api_run)),

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench.analysis.dataset import Dataset
+from bench.analysis.diagnose import noise as nm
 from bench.analysis.diagnose.data import Prepared, prepare
 from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
                                             build_state, has_temp_cubic, search)
@@ -31,7 +32,7 @@ __all__ = ["diagnose", "DiagnoseResult", "Finding", "write_report", "IC_MIN", "G
 
 
 def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: tuple[str, ...] | frozenset[str] = (),
-             progress: Any = None) -> DiagnoseResult:
+             progress: Any = None, power_on_at: float | None = None) -> DiagnoseResult:
     """Fit the baseline sensor model (plus the model file's known terms) to ``ds``, search the
     vocabulary for missing effects by blocked cross-validation, and return the findings.
 
@@ -41,7 +42,10 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
     again. ``seed`` is accepted for interface stability; the method is deterministic. ``hidden``:
     vocabulary names left out of the search (what the engine says about an effect it has no name
     for; the tests hide the injected effect this way). ``progress``: a callable taking one line of
-    text, called as the search goes.
+    text, called as the search goes. ``power_on_at``: when the data have no ``power_on_s`` column,
+    the time (s, on the ``time_s`` axis) the sensor was powered on (``--power-on-at``); None: the
+    first sample's time when the log starts within the first minute of power (module ``data``,
+    :data:`~bench.analysis.diagnose.data.POWER_ON_DEFAULT`).
     """
     del seed  # deterministic: blocked folds, grids, no random draws
     from bench.analysis.diagnose.blas import single_thread
@@ -50,12 +54,12 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
     if unknown:
         raise InputError(f"diagnose: unknown vocabulary name(s) to hide: {', '.join(sorted(unknown))}")
     with single_thread():
-        return _diagnose(ds, model_path, frozenset(hidden), progress)
+        return _diagnose(ds, model_path, frozenset(hidden), progress, power_on_at)
 
 
 def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = frozenset(),
-              progress: Any = None) -> DiagnoseResult:
-    p = prepare(ds)
+              progress: Any = None, power_on_at: float | None = None) -> DiagnoseResult:
+    p = prepare(ds, power_on_at=power_on_at, fit_lines="periodic" not in hidden)
     raw, spec_effects, model_terms = None, [], []
     if model_path is not None:
         raw, spec_effects, model_terms = _load_model(model_path)
@@ -64,15 +68,52 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     fixed = []
     for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
         fixed += _fixed_terms(p, name, axis, nl, ctx)
-    found = search(p, base_terms + fixed, hidden=hidden, progress=progress)
+    found, ow = _select(p, base_terms + fixed, hidden, progress)
+    # the sensor's noise model from what is left; when it is not white, selection is made again
+    # against it (generalised least squares): correlated noise may have passed for structure, and may
+    # have hidden it. When the correlated part is weak (the noise is mostly white) only the causes
+    # named already are tested again: a small model error is no reason to search anew
+    resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
+    models = nm.fit_models(p, resid, hidden)
+    # against a noise model the slow noise is the model's: no catch-all random walk in the search
+    search_hidden = hidden | {"rate_random_walk"}
+    if not any(nm.predictable(m, resid[a]) for a, m in models.items()):
+        named = {t.effect for t in ow.found}
+        search_hidden |= frozenset(n for n in CANDIDATES if n not in named and not CANDIDATES[n].noise_term)
+    for _ in range(NOISE_ROUNDS):
+        whiten = {a: m.whitener() for a, m in models.items() if not m.is_white}
+        if not whiten and not p.whiten:
+            break
+        if progress is not None:
+            progress("selecting again against the noise model ("
+                     + "; ".join(f"{a}: {m.describe()}" for a, m in models.items()) + ")")
+        p.whiten = whiten
+        found, ow = _select(p, base_terms + fixed, search_hidden, progress)
+        resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
+        again = nm.fit_models(p, resid, hidden)
+        stable = nm.same_structure(models, again)
+        models = again
+        if stable:
+            break
+    noise = nm.findings(p, models, resid, ow.unexplained, hidden)
+    return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid))
+
+
+NOISE_ROUNDS = 2
+"""Most selections against a re-fitted noise model after the first (white) one."""
+
+
+def _select(p: Prepared, terms: list[Term], hidden: frozenset[str], progress: Any) -> tuple[Search, Any]:
+    """Forward/backward selection and the open-world checks on the current fits (prewhitened by
+    ``p.whiten``): (search with the final sequence, open-world outcome)."""
     from bench.analysis.diagnose.engine import sequence
     from bench.analysis.diagnose.openworld import finish
 
-    ow = finish(p, base_terms + fixed, [t for t in found.final.terms if t.effect != "baseline" and not t.fixed],
-                hidden, progress)
+    found = search(p, terms, hidden=hidden, progress=progress)
+    ow = finish(p, terms, [t for t in found.final.terms if t.effect != "baseline" and not t.fixed], hidden, progress)
     found.dropped.extend(ow.dropped)
-    found.sequence, found.final = sequence(p, build_state(p, base_terms + fixed), ow.found)
-    return _result(p, ds, found, model_path, raw, fixed, ow)
+    found.sequence, found.final = sequence(p, build_state(p, terms), ow.found)
+    return found, ow
 
 
 # ---- model file -----------------------------------------------------------------------------------
@@ -157,7 +198,7 @@ def _noise_floor(r: np.ndarray) -> float:
 
 
 def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: dict[str, Any] | None,
-            fixed: list[Term], ow: Any) -> DiagnoseResult:
+            fixed: list[Term], ow: Any, noise: list[Finding], noise_section: dict[str, Any]) -> DiagnoseResult:
     skipped, reasons = [], {}
     for cand in CANDIDATES.values():
         miss = cand.missing(p)
@@ -180,8 +221,14 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             den = sum(float(np.dot(term.built.offsets[a], term.built.offsets[a])) for a in touched)
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
+        if term.effect == "warmup_transient":
+            ev["tau_s_interval"] = _tau_interval(p, s.final, term)
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
-    findings.extend(ow.noise)
+    for ln in p.lines:  # coherent lines above the bins' reach, fitted on the raw samples
+        findings.append(Finding("periodic", ln.axis, {"amplitude_dps": ln.amplitude_dps, "frequency_hz": ln.frequency_hz,
+                                                      "phase_rad": ln.phase_rad}, ln.rms_before, ln.rms_after,
+                                {"gain_heldout": ln.gain_heldout, "fitted_on": "raw samples, before binning"}))
+    findings.extend(noise)
     floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
     from bench.analysis.diagnose.structure import analyse
 
@@ -192,7 +239,33 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
         not_excited=s.not_excited, noise_floor=floors, rows=p.n, sample_rate_hz=p.fs, model_path=model_path,
         base_model=raw, fitted_baseline=_fitted_baseline(p, s), rounds=s.rounds, dropped=s.dropped,
         fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, unexplained=ow.unexplained,
-        band_s=p.blocks.length / p.fs, _internal=(p, s))
+        band_s=p.blocks.length / p.fs, noise=noise_section, _internal=(p, s))
+
+
+TAU_CHI2 = 3.84
+"""χ²₁ at 95 %: the warm-up τ interval is where the whole-data fit is within this of the best."""
+
+
+def _tau_interval(p: Prepared, final: Any, term: Term) -> list[float]:
+    """[low, high] (s): the warm-up time constants whose whole-data fit, the other terms as found,
+    lies within :data:`TAU_CHI2` of the best in units of the residual's variance times its inflation
+    φ (the data's correlated noise widens it). ``high`` at the top of the grid: the data do not bound
+    τ from above."""
+    from bench.analysis.diagnose.engine import _full_sse, inflation
+
+    cand = CANDIDATES[term.effect]
+    reduced = build_state(p, [t for t in final.terms if t is not term])
+    ctx = reduced.context()
+    a = term.axis
+    grid = sorted({g["tau_s"] for g in cand.grid(p, a, ctx)})
+    taus = np.geomspace(grid[0], grid[-1], 48)
+    w = {a: 1.0 / max(final.axes[a].mse, 1e-30)}
+    sse = np.array([_full_sse(p, reduced, cand.build(p, a, {"tau_s": float(t)}, ctx), w) for t in taus])
+    st = final.axes[a]
+    phi = inflation({a: st.fit.sse_block}, {a: st.fit.sum_block}, w)
+    ok = (sse - sse.min()) / phi <= TAU_CHI2
+    best = float(term.nl["tau_s"])
+    return [float(min(taus[ok].min(), best)), float(max(taus[ok].max(), best))]
 
 
 def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:

@@ -40,13 +40,23 @@ class CVFit:
         return float(self.sse_block.sum())
 
 
-def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = True) -> CVFit:
-    """Fit by blocked CV. ``A`` (B, m+1, m+1) augmented block Grams, ``P`` (m, m) penalty or None."""
+def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = True,
+           S: np.ndarray | None = None, gls: bool = False) -> CVFit:
+    """Fit by blocked CV. ``A`` (B, m+1, m+1) augmented block Grams, ``P`` (m, m) penalty or None,
+    ``S`` (B, m+1) block sums of [X | y] for the held-out residual's block sums (default: row 0 of
+    ``A``, the sums when column 0 is the constant 1; a prewhitened design passes its own).
+
+    ``gls``: the rows are prewhitened by a correlated noise model. Held-out blocks would then leak
+    (a whitened row depends on the rows before it, in other folds), so the per-block errors and sums
+    are those of the whole-data fit (the generalised least-squares likelihood), and ``df`` is always
+    computed (the criterion charges it)."""
     m = A.shape[1] - 1
     fold = blocks.fold_of
     K = blocks.folds
     tot = A.sum(axis=0)
-    per_fold = np.stack([A[fold == k].sum(axis=0) for k in range(K)])
+    onehot = np.zeros((K, A.shape[0]))
+    onehot[fold, np.arange(A.shape[0])] = 1.0
+    per_fold = (onehot @ A.reshape(A.shape[0], -1)).reshape(K, *A.shape[1:])
     train = tot[None] - per_fold
     G = train[:, :m, :m].copy()
     h = train[:, :m, m]
@@ -62,15 +72,27 @@ def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = 
     beta = _solve(Gf[None], tot[None, :m, m])[0]
     v = np.concatenate([beta_k, -np.ones((K, 1))], axis=1)
     vb = v[fold]
-    sse_block = np.einsum("bi,bij,bj->b", vb, A, vb)
-    sum_block = -np.einsum("bj,bj->b", A[:, 0, :], vb) if m else np.zeros(A.shape[0])
-    sse_train = np.einsum("ki,kij,kj->k", v, train, v)
+    sse_block = _quad(A, vb)
+    if S is not None:
+        sum_block = -np.einsum("bj,bj->b", S, vb)
+    else:
+        sum_block = -np.einsum("bj,bj->b", A[:, 0, :], vb) if m else np.zeros(A.shape[0])
+    sse_train = _quad(train, v)
     vf = np.concatenate([beta, [-1.0]])
     sse_full = float(vf @ tot @ vf)
     df = float(m)
-    if need_df and P is not None:
+    if (need_df or gls) and P is not None:
         df = float(np.trace(_solve(Gf[None], tot[None, :m, :m])[0]))
+    if gls:
+        sse_block = _quad(A, np.broadcast_to(vf, (A.shape[0], vf.size)))
+        sum_block = -(S if S is not None else A[:, 0, :]) @ vf
     return CVFit(np.maximum(sse_block, 0.0), np.maximum(sse_train, 0.0), beta, df, max(sse_full, 0.0), beta_k, sum_block)
+
+
+def _quad(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """vᵦᵀ A_b vᵦ for stacked matrices ``A`` (B, m, m) and vectors ``v`` (B, m) (batched products:
+    a three-operand einsum does not use BLAS)."""
+    return np.sum(np.matmul(A, v[:, :, None])[:, :, 0] * v, axis=1)
 
 
 def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -170,6 +192,11 @@ def augment(A: np.ndarray, Xb: np.ndarray, yb: np.ndarray, blocks: Blocks, Z: np
         out[:, m:m + q, -1] = zy
         out[:, -1, m:m + q] = zy
     return out
+
+
+def block_sums(blocks: Blocks, z: np.ndarray) -> np.ndarray:
+    """Per-block column sums (B, q) of ``z`` (n,) or (n, q)."""
+    return blocks.shaped(z).sum(axis=1)
 
 
 def full_gram(X: np.ndarray, y: np.ndarray) -> np.ndarray:

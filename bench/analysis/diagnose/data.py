@@ -155,6 +155,25 @@ class Prepared:
     """(rows, stretches) left out because the unit was being moved (:func:`motion_rows`)."""
     left_out: list[str] = field(default_factory=list)
     """Gyro columns left out because they hold one value (``"gyro_x_dps is constant (0 in all 400 rows)"``)."""
+    whiten: dict = field(default_factory=dict)
+    """axis -> :class:`bench.analysis.noise_model.Whitener`: the fits on that axis are generalised least
+    squares against the axis' noise model (response and every design column prewhitened); empty:
+    ordinary least squares (white noise)."""
+    power_on_note: str = ""
+    """How ``power_on_s`` was obtained when the data had none (``--power-on-at``), else empty."""
+    lines: list = field(default_factory=list)
+    """Coherent spectral lines above the bins' reach, fitted on the raw samples and removed before
+    binning (:func:`fast_lines`): each is a ``periodic`` finding."""
+
+    def w(self, axis: str, z):
+        """``z`` (n,) or (n, q) columns (a sparse hat basis made dense) prewhitened by the axis' noise
+        model, unchanged without one; None stays None."""
+        wh = self.whiten.get(axis)
+        if wh is None or z is None:
+            return z
+        if hasattr(z, "dense"):
+            z = z.dense()
+        return wh.apply(z, self.t)
 
     @property
     def n(self) -> int:
@@ -170,6 +189,8 @@ class Prepared:
                      f"{MOTION_G:g} g, ±{MOTION_PAD_S:g} s)")
         if self.left_out:
             moved += "; left out " + "; ".join(self.left_out)
+        if self.power_on_note:
+            moved += "; " + self.power_on_note
         if self.bin_rows <= 1:
             return f"analysed {self.n:,} rows at {self.fs:.4g} Hz" + moved
         why = f", {self.bin_reason}" if self.bin_reason else ""
@@ -202,9 +223,47 @@ class Prepared:
         return self.cache[key]
 
 
-def prepare(ds: Dataset) -> Prepared:
+POWER_ON_META = "power_on_at_s"
+"""Metadata key (CSV ``# power_on_at_s: 12.5``) giving the power-on time of a log without a
+``power_on_s`` column, like ``--power-on-at``."""
+
+
+def power_on_column(ds: Dataset, power_on_at: float | None) -> tuple[np.ndarray | None, str]:
+    """Time since power-on (s) for every row and how it was obtained.
+
+    The ``power_on_s`` column when the data have one (``power_on_at`` is then refused: two answers
+    to one question); else ``time_s − power_on_at`` from the option or the :data:`POWER_ON_META`
+    metadata; else None (the default: the warm-up is not searched, and ``skipped`` says how to
+    give the power-on time). The power-on may not be after the first row (rows before it are no
+    sensor output)."""
+    meta = ds.meta.get(POWER_ON_META)
+    if "power_on_s" in ds.columns:
+        if power_on_at is not None:
+            raise InputError(f"{ds.source}: the data have a power_on_s column; --power-on-at is for logs without one")
+        return np.asarray(ds.columns["power_on_s"], dtype=float), ""
+    how = "--power-on-at"
+    if power_on_at is None and meta is not None:
+        if not isinstance(meta, float):
+            raise InputError(f"{ds.source}: metadata {POWER_ON_META} must be a number of seconds, got {meta!r}")
+        power_on_at, how = float(meta), f"metadata {POWER_ON_META}"
+    if power_on_at is None:
+        return None, ""
+    if not math.isfinite(power_on_at):
+        raise InputError(f"{ds.source}: {how} must be a finite time in s, got {power_on_at!r}")
+    t = np.asarray(ds.columns["time_s"], dtype=float)
+    first = float(np.nanmin(t)) if t.size else 0.0
+    if power_on_at > first + 1e-9:
+        raise InputError(f"{ds.source}: {how} {power_on_at:g} s is after the first row (time_s {first:g} s): rows "
+                         "before the power-on are no sensor output; give a time at or before the first row")
+    return t - power_on_at, f"power-on at t = {power_on_at:g} s ({how})"
+
+
+def prepare(ds: Dataset, power_on_at: float | None = None, fit_lines: bool = True) -> Prepared:
     """Check ``ds`` and extract the arrays; :class:`InputError` when diagnose cannot run on it.
-    More than :data:`BIN_MIN_ROWS` rows are averaged into bins (:func:`bin_length`)."""
+    More than :data:`BIN_MIN_ROWS` rows are averaged into bins (:func:`bin_length`).
+    ``power_on_at``: the power-on time of a log without ``power_on_s`` (:func:`power_on_column`);
+    ``fit_lines``: coherent spectral lines above the bins' reach are fitted and removed before binning
+    (:func:`fast_lines`; False when ``periodic`` is hidden: the bins then average them out)."""
     if "time_s" not in ds.columns:
         raise InputError(f"{ds.source}: diagnose needs a time_s column")
     axes = [a for a in AXES if GYRO[a] in ds.columns]
@@ -226,12 +285,15 @@ def prepare(ds: Dataset) -> Prepared:
     if np.any(np.diff(t) <= 0):
         raise InputError(f"{ds.source}: time_s must increase from row to row")
 
+    power_on, power_note = power_on_column(ds, power_on_at)
     raw: dict[str, np.ndarray] = {}
     for name in ds.columns:
         v = np.asarray(ds.columns[name], dtype=float)
         v = v if every else v[ok]
         if v.ndim == 1 and np.all(np.isfinite(v)):
             raw[name] = v
+    if power_on is not None and "power_on_s" not in raw:
+        raw["power_on_s"] = power_on if every else power_on[ok]
     present = set(raw)
     raw_fs = 1.0 / float(np.median(np.diff(t)))
     motion = (0, 0)
@@ -246,9 +308,20 @@ def prepare(ds: Dataset) -> Prepared:
             raw = {k_: v[keep] for k_, v in raw.items()}
     raw_rows = t.size
     k, why = 1, ""
+    lines: list[Line] = []
     if t.size > BIN_MIN_ROWS:
-        k, why = bin_length(t.size, raw_fs, {a: raw[GYRO[a]] - raw.get(REF_RATE[a], 0.0) for a in axes},
-                            [raw[REF_RATE[a]] for a in AXES if REF_RATE[a] in raw])
+        refs_raw = [raw[REF_RATE[a]] for a in AXES if REF_RATE[a] in raw]
+        k, why = bin_length(t.size, raw_fs, {}, refs_raw)
+        span = k / raw_fs if k > 1 else 1.0 / raw_fs
+        for a in axes:  # lines above the bins' reach: fitted on the raw samples (coherent ones removed)
+            resp = raw[GYRO[a]] - raw.get(REF_RATE[a], 0.0)
+            found = fast_lines(t, resp, raw_fs, 1.0 / (BIN_PER_PERIOD * span)) if fit_lines else []
+            for ln in found:
+                ln.axis = a
+                raw[GYRO[a]] = raw[GYRO[a]] - ln.values(t)
+            lines += found
+        if lines:
+            why = (why + "; " if why else "") + "; ".join(ln.text() for ln in lines)
     if k > 1:
         t, raw = _bin_means(t, raw, k, raw_fs)
 
@@ -277,7 +350,7 @@ def prepare(ds: Dataset) -> Prepared:
                     power_on=col("power_on_s"), accel=accel, angle=col("table_angle_deg"),
                     latitude=ds.latitude_deg(), blocks=Blocks(n, length), present=present,
                     bin_rows=k, raw_rows=raw_rows, raw_fs=raw_fs, bin_reason=why, motion=motion,
-                    left_out=[constant_text(usable, c) for c in dead])
+                    left_out=[constant_text(usable, c) for c in dead], power_on_note=power_note, lines=lines)
     prep.table_axis = _table_axis(prep)
     if ref is not None:
         prep.blocks.balance(ref)
@@ -346,6 +419,9 @@ def bin_length(n: int, fs: float, response: dict[str, np.ndarray], refs: list[np
         if f_line is not None and 1.0 / (BIN_PER_PERIOD * f_line) < span:
             span, why = 1.0 / (BIN_PER_PERIOD * f_line), f"spectral line at {f_line:.4g} Hz on {a}"
     k = int(math.floor(span * fs * (1.0 + 1e-6)))  # a median interval a hair over 1/fs must not lose a row
+    cap = int(math.ceil(n / ANALYSED_MAX))
+    if k < cap:
+        k, why = cap, (why + "; " if why else "") + f"at most {ANALYSED_MAX:,} rows analysed"
     return (k, why) if k >= 2 else (1, "")
 
 
@@ -381,6 +457,92 @@ def _highest_line(r: np.ndarray, fs: float, f_min: float) -> float | None:
     i = int(hits[-1])
     near = slice(max(i - 2, 0), i + 3)
     return float(np.dot(f[near], excess[near]) / np.sum(excess[near]))  # between the periodogram's bins
+
+
+LINE_MAX = 3
+"""Most spectral lines above the bins' reach fitted per axis."""
+ANALYSED_MAX = 200_000
+"""Most rows analysed after binning: longer data get longer bins (table-angle harmonics faster than
+4 bins per period are then averaged out, and the summary says so), so the fits' memory does not
+grow with the length of the data."""
+
+
+@dataclass
+class Line:
+    """A coherent sinusoid A·sin(2πft + φ) (deg/s, Hz, rad) of an axis, fitted on the raw samples;
+    ``rms_before``/``rms_after`` the raw response's RMS without and with it; ``gain_heldout`` the
+    relative drop of the held-out variance (odd blocks fitted, even predicted, and back)."""
+
+    frequency_hz: float
+    amplitude_dps: float
+    phase_rad: float
+    rms_before: float
+    rms_after: float
+    gain_heldout: float
+    axis: str = ""
+
+    def values(self, t: np.ndarray) -> np.ndarray:
+        return self.amplitude_dps * np.sin(2.0 * math.pi * self.frequency_hz * t + self.phase_rad)
+
+    def text(self) -> str:
+        return (f"spectral line at {self.frequency_hz:.4g} Hz on {self.axis} ({self.amplitude_dps:.2g} deg/s) fitted "
+                "on the raw samples and removed before binning")
+
+
+LINE_BLOCK_S = 60.0
+"""Blocks of the held-out check of a fast line (odd blocks fitted, even ones predicted, and back)."""
+
+
+def fast_lines(t: np.ndarray, r: np.ndarray, fs: float, f_min: float) -> list[Line]:
+    """Spectral lines of ``r`` above ``f_min`` Hz (each carrying :data:`LINE_FRACTION` of the
+    variance, :func:`_highest_line`) that are coherent over the record: the sinusoid fitted on every
+    other :data:`LINE_BLOCK_S` block predicts the blocks between (held-out variance drop of at least
+    half the line's share). Narrow-band noise is not coherent and is left to the bins (it averages
+    out). Highest line first, at most :data:`LINE_MAX`."""
+    out: list[Line] = []
+    r = r - float(np.mean(r))
+    var = float(np.mean(r * r))
+    for _ in range(LINE_MAX):
+        f0 = _highest_line(r, fs, f_min)
+        if f0 is None:
+            break
+        f = _refine_line(t, r, f0, t[-1] - t[0])
+        ph = 2.0 * math.pi * f * t
+        X = np.column_stack([np.sin(ph), np.cos(ph)])
+        odd = (np.floor((t - t[0]) / LINE_BLOCK_S).astype(np.int64) % 2).astype(bool)
+        sse0 = sse1 = 0.0
+        for train in (odd, ~odd):
+            c, *_ = np.linalg.lstsq(X[train], r[train], rcond=None)
+            e = r[~train] - X[~train] @ c
+            sse0 += float(np.dot(r[~train], r[~train]))
+            sse1 += float(np.dot(e, e))
+        gain = 1.0 - sse1 / sse0 if sse0 > 0 else 0.0
+        if gain < 0.5 * LINE_FRACTION:
+            break
+        c, *_ = np.linalg.lstsq(X, r, rcond=None)
+        line = Line(f, float(math.hypot(*c)), float(math.atan2(c[1], c[0])), math.sqrt(var), 0.0, gain)
+        r = r - X @ c
+        var = float(np.mean(r * r))
+        line.rms_after = math.sqrt(var)
+        out.append(line)
+    return out
+
+
+def _refine_line(t: np.ndarray, r: np.ndarray, f0: float, span_s: float) -> float:
+    """The frequency of the line near ``f0`` to a small fraction of 1/span: ``r`` demodulated at
+    ``f0`` and averaged over blocks of a tenth of its period's inverse resolution (a zoom), whose
+    zero-padded periodogram peak near 0 Hz is the offset (one pass over the rows)."""
+    fs = 1.0 / float(np.median(np.diff(t[: min(t.size, 1000)])))
+    z = r * np.exp(-2j * math.pi * f0 * t)
+    k = max(int(fs / (8.0 * 2.0 * fs / 1024)), 1)  # blocks short against the offset's period
+    m = z.shape[0] // k
+    zb = z[: m * k].reshape(m, k).mean(axis=1)
+    nfft = 1 << int(math.ceil(math.log2(max(8 * m, 2))))
+    spec = np.abs(np.fft.fft(zb, nfft)) ** 2
+    df = np.fft.fftfreq(nfft, k / fs)
+    near = np.abs(df) <= 2.0 * fs / 1024
+    i = int(np.argmax(np.where(near, spec, -1.0)))
+    return float(f0 + df[i])
 
 
 def _bin_means(t: np.ndarray, cols: dict[str, np.ndarray], k: int, fs: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from bench.analysis.progress import each
-from bench.analysis.diagnose.cv import CVFit, SparseHat, augment, cv_fit
+from bench.analysis.diagnose.cv import CVFit, SparseHat, augment, block_sums, cv_fit
 from bench.analysis.diagnose.data import Blocks, Prepared
 from bench.analysis.diagnose.terms import AXES, CANDIDATES, Built, Candidate, Context, lagged_temp
 
@@ -114,6 +114,8 @@ class AxisState:
     A: np.ndarray
     spans: list[tuple[int, int, int]]
     fit: CVFit
+    S: np.ndarray | None = None
+    """(B, m+1) block sums of [X | y] (the held-out residual's block sums; prewhitened designs)."""
     _blocked: tuple[np.ndarray, np.ndarray] | None = None
     _resid: np.ndarray | None = None
 
@@ -211,8 +213,9 @@ def baseline_built(p: Prepared, axis: str, tau_s: float | None = None) -> Built:
 
 
 def response(p: Prepared, axis: str) -> np.ndarray:
-    """gyro − reference rate (deg/s): what the error model has to explain."""
-    return p.gyro[axis] - p.ref_axis(axis)
+    """gyro − reference rate (deg/s): what the error model has to explain (prewhitened by the axis'
+    noise model when it has one, :meth:`Prepared.w`)."""
+    return p.w(axis, p.gyro[axis] - p.ref_axis(axis))
 
 
 def axis_state(p: Prepared, a: str, terms: list[Term]) -> AxisState:
@@ -229,9 +232,9 @@ def axis_state(p: Prepared, a: str, terms: list[Term]) -> AxisState:
         if t.effect == "baseline" and t.axis == a and tau:
             built = baseline_built(p, a, tau)
         if a in built.offsets:
-            y = y - built.offsets[a]
+            y = y - p.w(a, built.offsets[a])
         if a in built.cols:
-            z = _dense(built.cols[a])
+            z = p.w(a, _dense(built.cols[a]))
             cols.append(z)
             pens.append((m, built.penalty.get(a)))
             spans.append((i, m, m + z.shape[1]))
@@ -247,8 +250,23 @@ def axis_state(p: Prepared, a: str, terms: list[Term]) -> AxisState:
                 q = pz.shape[0]
                 sc = scale[start:start + q]
                 P[start:start + q, start:start + q] = pz / np.outer(sc, sc)
-    A = p.blocks.gram(np.column_stack([X, y]))
-    return AxisState(X, scale, P, y, A, spans, cv_fit(A, P, p.blocks))
+    Xy = np.column_stack([X, y])
+    A = p.blocks.gram(Xy)
+    S = block_sums(p.blocks, Xy) if p.whiten else None
+    return AxisState(X, scale, P, y, A, spans, cv_fit(A, P, p.blocks, S=S, gls=bool(p.whiten)), S)
+
+
+def _sums_with(p: Prepared, st: AxisState, Zs: Any, y_new: np.ndarray | None) -> np.ndarray | None:
+    """Block sums of [X | Z | y_new] from those of [X | y] (None without prewhitening: row 0 of the
+    Grams holds them)."""
+    if st.S is None:
+        return None
+    m = st.X.shape[1]
+    parts = [st.S[:, :m]]
+    if Zs is not None:
+        parts.append(block_sums(p.blocks, _dense(Zs)))
+    parts.append(st.S[:, m:] if y_new is None else block_sums(p.blocks, y_new))
+    return np.concatenate(parts, axis=1)
 
 
 def build_state(p: Prepared, terms: list[Term]) -> State:
@@ -266,8 +284,8 @@ def add_term(p: Prepared, state: State, term: Term) -> State:
             axes[a] = axis_state(p, a, terms)
             continue
         st = state.axes[a]
-        Z = term.built.cols.get(a)
-        o = term.built.offsets.get(a)
+        Z = p.w(a, term.built.cols.get(a))
+        o = p.w(a, term.built.offsets.get(a))
         y_new = st.y - o if o is not None else st.y
         m = st.X.shape[1]
         if Z is not None:
@@ -283,7 +301,8 @@ def add_term(p: Prepared, state: State, term: Term) -> State:
             Zs, X, scale, P, spans = None, st.X, st.scale, st.P, list(st.spans)
         Xb, yb = st.blocked(p.blocks)
         A = augment(st.A, Xb, yb, p.blocks, Zs, None if o is None else y_new)
-        axes[a] = AxisState(X, scale, P, y_new, A, spans, cv_fit(A, P, p.blocks))
+        S = _sums_with(p, st, Zs, None if o is None else y_new)
+        axes[a] = AxisState(X, scale, P, y_new, A, spans, cv_fit(A, P, p.blocks, S=S, gls=bool(p.whiten)), S)
     return State(terms, axes)
 
 
@@ -323,19 +342,21 @@ class Evaluation:
         return self.resolved and material(self.d_ic_raw, self.gain, self.gain_band, self.band_t)
 
     def row(self) -> dict[str, Any]:
-        return {"effect": self.cand.name, "axis": self.axis, "d_ic": self.d_ic, "t": self.t, "gain": self.gain,
-                "gain_band": self.gain_band, "band_t": self.band_t, "rms_before": self.rms_before, "rms_after": self.rms_after,
+        return {"effect": self.cand.name, "axis": self.axis, "d_ic": self.d_ic, "t": self.t,
+                "gain": 1.0 / (1.0 - self.gain) if self.gain < 1 else float("inf"),
+                "gain_band": 1.0 / (1.0 - self.gain_band) if self.gain_band < 1 else float("inf"), "band_t": self.band_t, "rms_before": self.rms_before, "rms_after": self.rms_after,
                 "band_before": self.band_before, "band_after": self.band_after, "df": self.df, "phi": self.phi,
                 "d_ic_raw": self.d_ic_raw, "resolved": self.resolved, "acceptable": self.acceptable,
                 "nl": dict(self.nl_full)}
 
 
 
-def _candidate_columns(built, a: str):
-    """The candidate's columns ``Z`` and offset ``o`` on axis ``a``, with ``Z`` column-scaled
-    (``Zs``) and its penalty scaled to match (``Pz``); None where absent."""
-    Z = built.cols.get(a)
-    o = built.offsets.get(a)
+def _candidate_columns(p: Prepared, built, a: str):
+    """The candidate's columns ``Z`` and offset ``o`` on axis ``a`` (prewhitened when the axis has a
+    noise model), with ``Z`` column-scaled (``Zs``) and its penalty scaled to match (``Pz``); None
+    where absent."""
+    Z = p.w(a, built.cols.get(a))
+    o = p.w(a, built.offsets.get(a))
     Zs, Pz = None, None
     if Z is not None:
         s = _col_scale(Z)
@@ -353,17 +374,23 @@ def _fit_candidate(p: Prepared, state: State, built: Built, cache: dict | None =
             fits[a] = axis_state(p, a, state.terms + [Term("thermal_lag", a, {}, built)]).fit
             continue
         st = state.axes[a]
-        Z, o, Zs, Pz = _candidate_columns(built, a)
-        key = (a, id(Z), id(o))
-        if cache is not None and key in cache and cache[key][0] is Z and cache[key][1] is o:
-            A = cache[key][2]
+        raw_z, raw_o = built.cols.get(a), built.offsets.get(a)
+        key = (a, id(raw_z), id(raw_o))
+        if cache is not None and key in cache and cache[key][0] is raw_z and cache[key][1] is raw_o:
+            _, _, A, S, Z, Pz = cache[key]
+            pz = built.penalty.get(a)
+            if pz is not None:  # same columns, another penalty (a grid of smoothness)
+                sc = _col_scale(Z)
+                Pz = pz / np.outer(sc, sc)
         else:
+            Z, o, Zs, Pz = _candidate_columns(p, built, a)
             Xb, yb = st.blocked(p.blocks)
             A = augment(st.A, Xb, yb, p.blocks, Zs, None if o is None else st.y - o)
-            if cache is not None and Z is not None and built.penalty:
-                cache[key] = (Z, o, A)
+            S = _sums_with(p, st, Zs, None if o is None else st.y - o)
+            if cache is not None and raw_z is not None and built.penalty:
+                cache[key] = (raw_z, raw_o, A, S, Z, Pz)
         P = _blockdiag(st.P, st.X.shape[1], Pz, 0 if Z is None else Z.shape[1])
-        fits[a] = cv_fit(A, P, p.blocks, need_df=False)
+        fits[a] = cv_fit(A, P, p.blocks, need_df=False, S=S, gls=bool(p.whiten))
     return fits
 
 
@@ -414,7 +441,17 @@ def evaluate(p: Prepared, state: State, cand: Candidate, axis: str, ctx: Context
     fold = p.blocks.fold_of
     train = np.array([[sum(w[a] * f[a].sse_train[k] for a in axes) for k in range(p.blocks.folds)] for _, _, f in runs])
     held = np.array([[f[a].sse_block for a in axes] for _, _, f in runs])  # (G, axes, B)
-    if cand.select_by_cv:
+    gls = bool(p.whiten)
+    n = p.n
+    if gls:
+        # whole-data generalised least squares (cv_fit): the grid value of the best criterion, its
+        # flexibility (effective parameters of a penalised term) charged
+        dfs = np.array([sum(f[a].df - state.axes[a].fit.df for a in axes) for _, _, f in runs])
+        crit = np.array([sum(n * math.log(max(f[a].sse_full, 1e-300) / max(state.axes[a].fit.sse, 1e-300)) for a in axes)
+                         for _, _, f in runs]) + np.maximum(dfs, 1.0) * math.log(n * len(axes))
+        g_full = int(np.argmin(crit))
+        pick = np.full(B, g_full)
+    elif cand.select_by_cv:
         g = int(np.argmin(np.einsum("gab,a->g", held, np.array([w[a] for a in axes]))))
         pick = np.full(B, g)
         g_full = g
@@ -427,13 +464,14 @@ def evaluate(p: Prepared, state: State, cand: Candidate, axis: str, ctx: Context
     sums = np.array([[f[a].sum_block for a in axes] for _, _, f in runs])
     hsum = {a: sums[pick, j, np.arange(B)] for j, a in enumerate(axes)}
     phi = inflation(hold, hsum, w)
-    n = p.n
     loglik = 0.0
     for a in axes:
         old, new = state.axes[a].fit.sse, float(hold[a].sum())
         loglik += n * math.log(max(new, 1e-300) / max(old, 1e-300))
     nl_count = len(cand.nonlinear) if len(grid) > 1 else 0
-    if cand.select_by_cv:
+    if gls and cand.select_by_cv:
+        df = float(dfs[g_full]) + len(cand.nonlinear)
+    elif cand.select_by_cv:
         # a penalised smoother whose smoothness is chosen by held-out error: cross-validation already
         # charges its flexibility, the criterion counts the chosen hyperparameter
         df = float(len(cand.nonlinear))
@@ -507,7 +545,7 @@ def _full_sse(p: Prepared, state: State, built: Built, w: dict[str, float]) -> f
             total += w[a] * axis_state(p, a, state.terms + [Term("thermal_lag", a, {}, built)]).fit.sse_full
             continue
         st = state.axes[a]
-        Z, o, Zs, Pz = _candidate_columns(built, a)
+        Z, o, Zs, Pz = _candidate_columns(p, built, a)
         A1 = st.A.sum(axis=0, keepdims=True)
         A = augment(A1, st.X[None], st.y[None, :, None], one, Zs, None if o is None else st.y - o)[0]
         m = A.shape[0] - 1

@@ -1,12 +1,8 @@
-"""After selection: what the named terms may claim, the noise terms the Allan deviation shows, and the
-structure that nothing in the vocabulary names (``docs/diagnose.md``, "Open world").
+"""After selection: what the named terms may claim, and the structure that nothing in the vocabulary
+names (``docs/diagnose.md``, "Open world"). Noise terms are named by the noise model (``noise.py``).
 
-1. **Noise terms by their Allan slope.** A random walk absorbs any slow structure (a step, a drift,
-   a heating/cooling split), so ``rate_random_walk`` keeps its name only when the residual without it
-   has an Allan deviation whose excess over the white-noise line rises with slope +½ over at least a
-   decade of τ (:data:`DECADE`) and the fitted walk's increments look like a random walk's (no few
-   jumps carrying it, no common sign: :func:`walk_increments_ok`). ``bias_instability`` (flicker) is
-   named when the excess is flat (slope 0) over a decade.
+0. The search's catch-all random walk is dropped: noise terms are named by the noise model.
+1. **Bias steps** are not named when a covariate changes at the same instant.
 2. **Specific evidence.** A named term of a family (``"time"``: slow terms, ``"rate"``: static
    functions of the rate) must still be needed when the family's generic probe is in the model,
    whenever that probe finds structure the final model leaves: otherwise it is a partial explanation
@@ -14,7 +10,8 @@ structure that nothing in the vocabulary names (``docs/diagnose.md``, "Open worl
 3. **Unexplained.** Every generic probe (:data:`terms.PROBES`: a smooth function of time, of the rate,
    of temperature by heating/cooling, of pressure, a spectral line) is evaluated on the final model
    by the same held-out criterion as a candidate; one that is acceptable is structure left, reported
-   per axis with its size and where it lives.
+   per axis with its size and where it lives. With a noise model (prewhitened fits) the probes are
+   judged against that model: the sensor's own correlated noise is not structure.
 """
 
 from __future__ import annotations
@@ -29,25 +26,14 @@ from scipy import stats
 from bench.analysis.allan import overlapping_adev
 from bench.analysis.diagnose.data import Prepared
 from bench.analysis.diagnose.engine import State, Term, build_state, compare, evaluate, material, term_df
-from bench.analysis.diagnose.result import Finding
 from bench.analysis.diagnose.terms import CANDIDATES, FAMILY_PROBE, PROBES
-from bench.analysis.allan import FLICKER_FLOOR
 
-DECADE = 10.0
-"""A noise term is named only when its slope holds over at least this ratio of τ (one decade)."""
-SLOPE_TOL = 0.2
-"""Tolerance on the Allan-deviation slope of the excess (+½ random walk, 0 flicker)."""
 EXCESS_P = 1e-3
 """Per-τ false-alarm probability for 'above the white-noise line' (chi-squared, white-FM edf)."""
 EXCESS_MIN = 1.1
 """... and at least this ratio of Allan variances (a material excess, not a rounding of N)."""
 MIN_CLUSTERS = 4
 """Fewest independent clusters (n/m) at a τ used for the slope."""
-KURTOSIS_MAX = 6.0
-"""A random walk's increments are Gaussian (kurtosis 3); a few jumps (a step, a split) give more."""
-RHO_MAX = 0.7
-"""... and nearly independent: lag-1 correlation of the fitted walk's increments below this (the
-penalty smooths a true walk to about 0.3; a smooth deterministic drift gives 0.9 and more)."""
 COINCIDE_RANGE = 0.05
 """... and more than this fraction of the covariate's whole range (a steady slow trend is not a jump)."""
 PARTIAL_SHARE = 0.25
@@ -115,23 +101,6 @@ def allan_excess(r: np.ndarray, fs: float) -> Excess:
     return out
 
 
-def walk_increments_ok(coef: np.ndarray) -> tuple[bool, dict[str, float]]:
-    """Whether a fitted walk's knot values move like a random walk: increments with no common sign
-    (|mean| < 3 standard errors: not a drift), Gaussian tails (kurtosis ≤ :data:`KURTOSIS_MAX`: not
-    a few jumps) and nearly independent (lag-1 correlation < :data:`RHO_MAX`: not a smooth curve)."""
-    d = np.diff(np.asarray(coef, dtype=float))
-    if d.size < 8 or not np.any(d):
-        return False, {}
-    sd = float(np.std(d, ddof=1))
-    mean = float(np.mean(d))
-    kurt = float(stats.kurtosis(d, fisher=False))
-    rho = float(np.corrcoef(d[:-1], d[1:])[0, 1]) if np.std(d[:-1]) > 0 and np.std(d[1:]) > 0 else 1.0
-    drift = abs(mean) > 3.0 * sd / math.sqrt(d.size)
-    ok = not drift and kurt <= KURTOSIS_MAX and rho < RHO_MAX
-    return ok, {"increment_kurtosis": kurt, "increment_mean_sigmas": mean / (sd / math.sqrt(d.size)),
-                "increment_lag1_correlation": rho}
-
-
 def coincident_covariates(p: Prepared, t_step: float) -> list[str]:
     """Measured covariates that change abruptly at ``t_step`` (s): pressure, temperature trend,
     specific force, power cycles. A bias that moves with one of them is not a bias step."""
@@ -168,7 +137,7 @@ def _probe_evaluations(p: Prepared, state: State, axis: str, skip: tuple[str, ..
     for name in PROBES:
         if name in skip:
             continue
-        hit = _probe_term(p, state, name, axis)
+        hit = probe_term(p, state, name, axis)
         if hit is not None:
             out[name] = hit[1]
     return out
@@ -191,11 +160,15 @@ def _lives_in_time_only(evals: dict[str, Any]) -> tuple[bool, str]:
 @dataclass
 class OpenWorld:
     found: list[Term]
-    noise: list[Finding]
-    """Noise terms named from the Allan deviation (rms before/after: without and with the time probe)."""
     unexplained: list[dict[str, Any]]
     dropped: list[dict[str, Any]]
     excess: dict[str, Excess]
+
+
+def ratio(drop: float) -> float:
+    """A relative drop of an RMS (1 − after/before) as the ratio before/after, the one meaning of
+    ``gain`` in the output (findings and unexplained alike)."""
+    return 1.0 / (1.0 - drop) if drop < 1.0 else float("inf")
 
 
 def _without(found: list[Term], term: Term) -> list[Term]:
@@ -208,7 +181,7 @@ def _drop(dropped: list[dict[str, Any]], found: list[Term], term: Term, reason: 
     return _without(found, term)
 
 
-def _probe_term(p: Prepared, state: State, name: str, axis: str) -> tuple[Term, Any] | None:
+def probe_term(p: Prepared, state: State, name: str, axis: str) -> tuple[Term, Any] | None:
     """The probe evaluated on ``state`` at ``axis`` and, when acceptable, as a model term."""
     probe = PROBES[name]
     if probe.missing(p) or axis not in probe.candidate_axes(p) or probe.not_excited(p, axis):
@@ -231,11 +204,11 @@ def _partial(p: Prepared, base_terms: list[Term], found: list[Term], final: Stat
     if left > PARTIAL_SHARE * explained:
         return (f"partial explanation: {where} still explains {math.sqrt(max(left, 0)):.2g} deg/s after it, against "
                 f"{math.sqrt(max(explained, 0)):.2g} deg/s explained by the term")
-    probe_term = _probe_term(p, build_state(p, base_terms + others), probe_name, a)
-    if probe_term is None:
+    hit = probe_term(p, build_state(p, base_terms + others), probe_name, a)
+    if hit is None:
         return None
-    reduced = build_state(p, base_terms + others + [probe_term[0]])
-    with_term = build_state(p, base_terms + others + [probe_term[0], term])
+    reduced = build_state(p, base_terms + others + [hit[0]])
+    with_term = build_state(p, base_terms + others + [hit[0], term])
     d_ic, gain, _, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
     term.evidence.update({"d_ic_given_probe": d_ic})
     if d_ic < -10.0 and max(gain, gain_band) > 0:
@@ -250,30 +223,11 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
     say = progress or (lambda _msg: None)
     found = list(found)
     dropped: list[dict[str, Any]] = []
-    noise: list[Finding] = []
     excess: dict[str, Excess] = {}
 
-    # 1. the random walk keeps its name only on its own evidence
+    # 1. the catch-all random walk never keeps its name: the noise model names the noise
     for term in [t for t in found if t.effect == "rate_random_walk" and not t.fixed]:
-        a = term.axis
-        say(f"open world: checking the random walk on {a}")
-        without = build_state(p, base_terms + _without(found, term))
-        ex = allan_excess(without.axes[a].resid(), p.fs)
-        full = build_state(p, base_terms + found)
-        idx = next(i for i, t in enumerate(full.terms) if t is term)
-        ok_inc, inc = walk_increments_ok(full.axes[a].coef(idx))
-        slope_ok = abs(ex.slope - 0.5) <= SLOPE_TOL and ex.decades >= 1.0
-        term.evidence.update({"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s, **inc})
-        in_time, where = _lives_in_time_only(_probe_evaluations(p, without, a)) if slope_ok and ok_inc else (True, "")
-        if slope_ok and ok_inc and in_time:
-            continue
-        why = [] if in_time else [where]
-        if not slope_ok:
-            why.append(f"Allan excess slope {ex.slope:+.2f} over {ex.decades:.2f} decades (a random walk: +0.5 over ≥ 1)"
-                       if math.isfinite(ex.slope) else "no Allan excess over the white-noise line")
-        if not ok_inc:
-            why.append(f"the walk's increments are not a random walk's ({', '.join(f'{k} {v:.3g}' for k, v in inc.items())})")
-        found = _drop(dropped, found, term, "; ".join(why))
+        found = _drop(dropped, found, term, "a random walk is a noise term: the noise model names it")
 
     # bias steps: not when a covariate changes at the same time
     for term in [t for t in found if t.effect == "bias_step" and not t.fixed]:
@@ -291,7 +245,7 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
                 mine = [t for t in found if not t.fixed and t.axis == a and CANDIDATES[t.effect].family == family]
                 if not mine:
                     continue
-                hit = _probe_term(p, final, probe_name, a)
+                hit = probe_term(p, final, probe_name, a)
                 if hit is None or not hit[1].acceptable:
                     continue
                 say(f"open world: {probe_name} finds structure on {a}; checking {', '.join(t.effect for t in mine)}")
@@ -326,22 +280,10 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
     unexplained: list[dict[str, Any]] = []
     for a in p.axes:
         say(f"open world: looking for structure left on {a}")
-        has_walk = any(t.effect == "rate_random_walk" and t.axis == a for t in found)
         ex = allan_excess(final.axes[a].resid(), p.fs)
         excess[a] = ex
-        evals = _probe_evaluations(p, final, a, ("probe:time",) if has_walk else ())
+        evals = _probe_evaluations(p, final, a)
         hits = [e for e in evals.values() if e.acceptable]
-        time_hit = next((e for e in hits if e.cand.name == "probe:time"), None)
-        if (time_hit is not None and "bias_instability" not in hidden and abs(ex.slope) <= SLOPE_TOL
-                and ex.decades >= 1.0 and _lives_in_time_only(evals)[0]):
-            b = ex.level_dps / FLICKER_FLOOR
-            noise.append(Finding("bias_instability", a,
-                                 {"b_dps": b, "tau_min_s": ex.tau_range_s[0], "tau_max_s": ex.tau_range_s[1]},
-                                 time_hit.rms_before, time_hit.rms_after,
-                                 {"allan_excess_slope": ex.slope, "allan_tau_range_s": ex.tau_range_s}))
-            # every other slow probe was weaker than time by IC_MIN (_lives_in_time_only): what they
-            # found is the same wander; a spectral line is not
-            hits = [e for e in hits if e.cand.name == "probe:spectrum"]
         if not hits:
             continue
         hits.sort(key=lambda e: e.d_ic)
@@ -350,7 +292,8 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
             size = math.sqrt(max(e.rms_before ** 2 - e.rms_after ** 2, 0.0))
             band = math.sqrt(max(e.band_before ** 2 - e.band_after ** 2, 0.0))
             item = {"against": PROBES[e.cand.name].where, "probe": e.cand.name.split(":", 1)[1],
-                    "rms_dps": size, "band_rms_dps": band, "gain": e.gain, "gain_band": e.gain_band, "d_ic": e.d_ic}
+                    "rms_dps": size, "band_rms_dps": band, "gain": ratio(e.gain), "gain_band": ratio(e.gain_band),
+                    "d_ic": e.d_ic}
             if "frequency_hz" in e.nl_full:
                 item["frequency_hz"] = float(e.nl_full["frequency_hz"])
             where.append(item)
@@ -363,4 +306,4 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
             "where": where,
             "allan_excess": ex.as_json(),
         })
-    return OpenWorld(found, noise, unexplained, dropped, excess)
+    return OpenWorld(found, unexplained, dropped, excess)

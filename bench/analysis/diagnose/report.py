@@ -145,6 +145,23 @@ def _render(result: DiagnoseResult, p: Prepared, s: Search) -> str:
     else:
         sections.append(("Findings", "<p>No missing effect: no candidate passed the selection rule.</p>"))
 
+    # the sensor's noise model
+    if result.noise:
+        nrows = []
+        for a, sec in result.noise.items():
+            ro = sec.get("ieee952") or {}
+            nrows.append([a, sec["describe"], "yes" if sec["whitened"] else "no",
+                          ro.get("arw_deg_per_sqrt_h"), ro.get("bias_instability_deg_per_h"),
+                          ro.get("rrw_deg_per_h_per_sqrt_h")])
+        body = ("<p>The sensor's stochastic model fitted per axis from what the selection leaves (Whittle "
+                "likelihood: white, flicker, random walk, Gauss-Markov); where it is not white the fits were "
+                "made against it (prewhitened). The IEEE 952 read-outs are those of the residual's Allan "
+                "deviation.</p>"
+                + "".join(f"<p>{esc(line)}</p>" for a in result.noise if (line := result.noise_line(a)))
+                + table(["axis", "noise model", "fits against it", "ARW (deg/√h)", "B (deg/h)", "K (deg/h/√h)"],
+                        nrows, left=2))
+        sections.append(("Noise model", body))
+
     # unexplained structure
     if result.unexplained:
         urows = []

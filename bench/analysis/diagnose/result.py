@@ -82,6 +82,9 @@ class DiagnoseResult:
     sample and on the block-mean band) and where it lives (``openworld.py``)."""
     band_s: float = float("nan")
     """Length of the blocks whose means form the slow band (s)."""
+    noise: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Per axis: the fitted noise model in IEEE 952 units, whether the fits were prewhitened by it,
+    and the Allan read-outs of the residual (``noise.py``)."""
     structure: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict, repr=False)
     """``structure[stage][axis]`` for stage baseline/extended: the held-out residual's covariate
     correlations, Allan deviation vs white noise, spectra (``structure.analyse``)."""
@@ -96,13 +99,14 @@ class DiagnoseResult:
             "unexplained": _plain(self.unexplained),
             "skipped": list(self.skipped),
             "band_s": _num(self.band_s),
+            "noise": _plain(self.noise),
         }
 
     def summary_lines(self) -> list[str]:
         """Human summary: one line per axis, one per all-axes finding, then skipped terms."""
         lines = []
         for a, v in self.axes.items():
-            mine = [f for f in self.findings if f.axis == a]
+            mine = [f for f in self.findings if f.axis == a and not CANDIDATES[f.effect].noise_term]
             shared = [f for f in self.findings if f.axis == "all"]
             head = f"{a}: baseline residual {v['rms_baseline']:.2g} deg/s"
             left = [u for u in self.unexplained if u["axis"] == a]
@@ -121,6 +125,10 @@ class DiagnoseResult:
             lines.append("; ".join(parts))
             lines += [self.unexplained_line(u) for u in left]
         for a in self.axes:
+            line = self.noise_line(a)
+            if line:
+                lines.append(line)
+        for a in self.axes:
             line = self.structure_line(a)
             if line:
                 lines.append(line)
@@ -134,6 +142,33 @@ class DiagnoseResult:
             lines.append("skipped (columns absent): " + ", ".join(
                 f"{s} ({', '.join(self.skipped_reasons.get(s, []))})" for s in self.skipped))
         return lines
+
+    def noise_line(self, axis: str) -> str | None:
+        """The axis' noise model and the IEEE 952 read-outs of its residual, e.g. "y noise: white
+        0.015 deg/√h + flicker B 29.2 deg/h + Gauss-Markov 0.033 deg/s, τc 2.02 s (named:
+        bias_instability, gauss_markov); Allan read-out: ARW 3.2 deg/√h (τ 6 s), B 34.6 deg/h (τ 362 s)"."""
+        sec = self.noise.get(axis)
+        if not sec:
+            return None
+        named = [f.effect for f in self.findings if f.axis == axis and CANDIDATES[f.effect].noise_term]
+        text = f"{axis} noise: {sec['describe']}"
+        if named:
+            text += f" (named: {', '.join(named)})"
+        elif not sec["model"]["gauss_markov"] and sec["model"]["bias_instability_deg_per_h"] is None \
+                and sec["model"]["rrw_deg_per_h_per_sqrt_h"] is None:
+            text += " (white)"
+        ro = sec.get("ieee952") or {}
+        parts = []
+        for key, label, unit in (("arw_deg_per_sqrt_h", "ARW", "deg/√h"), ("bias_instability_deg_per_h", "B", "deg/h"),
+                                 ("rrw_deg_per_h_per_sqrt_h", "K", "deg/h/√h")):
+            v = ro.get(key)
+            if v is not None:
+                how = ro.get(key.rsplit("_deg", 1)[0] + "_read") or {}
+                est = ", estimate only" if how.get("estimate_only") else ""
+                parts.append(f"{label} {v:.3g} {unit} (τ {how.get('tau_s', float('nan')):.3g} s{est})")
+        if parts:
+            text += "; Allan read-out: " + ", ".join(parts)
+        return text
 
     def unexplained_line(self, u: dict[str, Any]) -> str:
         """One line for an unexplained-structure entry."""
@@ -195,7 +230,7 @@ def _num(v: float) -> float | None:
 
 def _evidence(ev: dict[str, Any]) -> dict[str, Any]:
     keep = ("d_ic", "phi", "t", "d_ic_given_probe", "allan_excess_slope", "allan_tau_range_s", "increment_kurtosis",
-            "fitted_scale")
+            "fitted_scale", "gain_heldout", "fitted_on", "noise_model", "d_bic", "tau_s_interval")
     return {k: ev[k] for k in keep if k in ev}
 
 

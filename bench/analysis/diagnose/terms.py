@@ -187,7 +187,7 @@ class WarmupTransient(Candidate):
     resolved = ("tau_s",)
 
     def missing(self, p):
-        return [] if p.power_on is not None else ["power_on_s"]
+        return [] if p.power_on is not None else ["power_on_s, or its time with --power-on-at TIME or # power_on_at_s"]
 
     def not_excited(self, p, axis):
         if float(np.min(p.power_on)) > 600.0 and not np.any(np.diff(p.power_on) < 0):
@@ -371,6 +371,7 @@ RATE_SIGN_DPS = 0.05
 
 class ScaleFactorTempco(Candidate):
     name = "scale_factor_tempco"
+    family = "rate_scale"
 
     def missing(self, p):
         out = [] if p.ref is not None else ["ref_rate_*_dps"]
@@ -464,6 +465,10 @@ class TimeSkew(Candidate):
 
 
 class RateRandomWalk(Candidate):
+    """A random walk of the bias: a linear spline with the random-walk prior as a penalty. The search
+    takes it as the catch-all of slow structure (named causes get their second chance against it);
+    it never keeps the name: noise terms are named by the noise model (``noise.py``)."""
+
     name = "rate_random_walk"
     nonlinear = ("k_dps_per_sqrt_s",)
     select_by_cv = True
@@ -666,8 +671,7 @@ class ScaleFactorNonlinearity(Candidate):
 
 
 class BiasInstability(Candidate):
-    """Flicker bias noise: named from a flat stretch (slope 0) of the residual's Allan deviation above
-    its white-noise line over at least a decade of τ (``bench/analysis/diagnose/noise.py``)."""
+    """Flicker bias noise: named from the noise model (``bench/analysis/diagnose/noise.py``)."""
 
     name = "bias_instability"
     noise_term = True
@@ -683,10 +687,19 @@ class BiasInstability(Candidate):
                 f"{3600 * 0.664 * params['b_dps']:.3g} deg/h over τ = {params['tau_min_s']:.3g}-{params['tau_max_s']:.3g} s)")
 
 
+class GaussMarkov(BiasInstability):
+    """Exponentially correlated (first-order Markov) bias noise: named from the noise model."""
+
+    name = "gauss_markov"
+
+    def describe(self, params):
+        return f"correlated (Gauss-Markov) bias noise {params['sigma_dps']:.2g} deg/s, τc = {params['tau_s']:.3g} s"
+
+
 CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
     ThermalLag(), WarmupTransient(), PressureBias(), GearEccentricity(), GSensitivity(), ScaleFactorAsymmetry(),
     ScaleFactorTempco(), Hysteresis(), TimeSkew(), RateRandomWalk(), EarthRate(), BiasStep(), Periodic(),
-    ScaleFactorNonlinearity(), BiasInstability())}
+    ScaleFactorNonlinearity(), BiasInstability(), GaussMarkov())}
 """Every vocabulary term as a candidate, in vocabulary order (grown with :func:`register`)."""
 
 assert tuple(CANDIDATES) == fx.VOCABULARY
@@ -735,6 +748,7 @@ class TimeProbe(RateRandomWalk):
 
     name = "probe:time"
     where = "time (slow drift, steps, wander)"
+    noise_term = False
 
 
 class RateProbe(Probe):
@@ -792,6 +806,37 @@ class PressureProbe(Probe):
 
     def build(self, p, axis, nl, ctx):
         z = _cached(p, ("hats_p",), lambda: _Hats.columns(np.log10(p.pressure), self.KNOTS))
+        return Built(cols={axis: z}) if z is not None else Built()
+
+
+class RateScaleProbe(Probe):
+    """A scale factor that is any smooth function of temperature and of pressure: ω·hats(T) and
+    ω·hats(log p) on the axis' reference rate. It imitates a linear scale-factor tempco and finds a
+    scale factor that changes with the vacuum, which no vocabulary term names."""
+
+    name = "probe:rate_scale"
+    where = "scale factor against temperature and pressure"
+    KNOTS = 6
+
+    def candidate_axes(self, p):
+        if p.temp is None and p.pressure is None:
+            return []
+        return [a for a in p.axes if p.rate_excited(a)]
+
+    def build(self, p, axis, nl, ctx):
+        def cols():
+            w = p.ref_axis(axis)[:, None]
+            parts = []
+            if p.temp is not None and _temp_range(p) >= 2.0:
+                h = _Hats.columns(p.temp, self.KNOTS)
+                if h is not None:
+                    parts.append(np.column_stack([np.ones(p.n), h]) * w)
+            if p.pressure is not None and np.ptp(np.log10(p.pressure)) >= 1.0:
+                h = _Hats.columns(np.log10(p.pressure), self.KNOTS)
+                if h is not None:
+                    parts.append(h * w)
+            return np.column_stack(parts) if parts else None
+        z = _cached(p, ("hats_rate_scale", axis), cols)
         return Built(cols={axis: z}) if z is not None else Built()
 
 
@@ -872,9 +917,9 @@ class AngleRateProbe(GearEccentricity):
 
 PROBES: dict[str, Candidate] = {c.name: c for c in (
     TimeProbe(), RateProbe(), TemperatureDirectionProbe(), PressureProbe(), SpectrumProbe(), SpecificForceProbe(),
-    RateDerivativeProbe(), AngleProbe(), AngleRateProbe())}
+    RateDerivativeProbe(), AngleProbe(), AngleRateProbe(), RateScaleProbe())}
 """Generic probes, evaluated after selection like candidates: an acceptable one is structure left
 unexplained; ``"time"`` and ``"rate"`` also check the specific evidence of the named terms."""
 FAMILY_PROBE = {"time": "probe:time", "rate": "probe:rate", "specific_force": "probe:specific_force",
-                "spectrum": "probe:spectrum", "angle_rate": "probe:angle_rate"}
+                "spectrum": "probe:spectrum", "angle_rate": "probe:angle_rate", "rate_scale": "probe:rate_scale"}
 """A candidate's ``family`` -> the probe its specific evidence is checked against."""

@@ -1,0 +1,173 @@
+"""The noise step of ``bench diagnose``: the sensor's noise model per axis, fitted from what the
+deterministic search and the covariate probes leave, the findings it names, and its IEEE Std 952
+read-outs (``docs/diagnose.md``, "Noise model").
+
+* **What the model is fitted on.** The residual of the selected deterministic model (ordinary least
+  squares on the rows as analysed), less the structure a *covariate* probe or a spectral line finds
+  there (``unexplained`` entries whose best probe is not time): structure that lives against a
+  measured covariate is never noise. What is left lives in time only: white noise, flicker, a random
+  walk, correlated (Gauss-Markov) noise (:func:`bench.analysis.noise_model.fit_noise_model`).
+* **Names.** A noise term is named (a finding) only on an axis where nothing is left unexplained and
+  its kind is not hidden: ``bias_instability`` (flicker B), ``rate_random_walk`` (K),
+  ``gauss_markov`` (σ, τ_c). Its ``rms_before`` is the residual's RMS, ``rms_after`` the RMS of the
+  one-step prediction error under the model (the innovations).
+* **Read-outs.** The residual's overlapping Allan deviation (:mod:`bench.analysis.allan`, the one
+  home of it) read the IEEE Std 952 way (:func:`bench.analysis.allan.read_noise_terms`): angle
+  random walk, bias instability, rate random walk, with the τ where each was read.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from bench.analysis.diagnose.data import Prepared
+from bench.analysis.diagnose.engine import Term, build_state
+from bench.analysis.diagnose.result import Finding
+from bench.analysis.noise_model import IC_MIN, NoiseModel, fit_noise_model, stationarity
+
+KINDS = {"bias_instability": "flicker", "rate_random_walk": "rrw", "gauss_markov": "gm"}
+"""Vocabulary noise term -> noise-model component kind."""
+NOT_NOISE = ("time",)
+"""Probes whose structure may be noise (everything else found by a probe is left out of the fit)."""
+
+
+def residuals(p: Prepared, terms: list[Term], unexplained: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+    """Per axis, the residual the noise model is fitted on (module docstring), deg/s at the analysed
+    rate, computed without prewhitening."""
+    from bench.analysis.diagnose.openworld import probe_term
+
+    saved = p.whiten
+    p.whiten = {}
+    try:
+        extra: list[Term] = []
+        for u in unexplained:
+            names = [w["probe"] for w in u["where"]]
+            take = [n for n in names if n not in NOT_NOISE]
+            if names and names[0] in NOT_NOISE:
+                take = [n for n in take if n == "spectrum"]  # a line is never noise; slow structure in time may be
+            for name in take[:2]:
+                hit = probe_term(p, build_state(p, terms + extra), "probe:" + name, u["axis"])
+                if hit is not None:
+                    extra.append(hit[0])
+        st = build_state(p, terms + extra)
+        return {a: st.axes[a].resid() for a in p.axes}
+    finally:
+        p.whiten = saved
+
+
+def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str] = frozenset()) -> dict[str, NoiseModel]:
+    """The noise model of each axis. It stays white (the fits ordinary least squares, slow structure
+    left to the probes) when
+
+    * its slow part is not stationary (:func:`bench.analysis.noise_model.stationarity`: a transient,
+      a step, a drift or structure that follows the run's covariates has its power in some stretches
+      only): that is structure, not the sensor's noise;
+    * a noise term is hidden (``hidden``): with part of its noise vocabulary missing the model would
+      give the noise another term's name."""
+    out = {}
+    for a, r in resid.items():
+        if any(name in hidden for name in KINDS):
+            m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
+            m.steps.append({"component": "correlated noise", "d_bic": 0.0, "accepted": False,
+                            "reason": "a noise term is hidden: white only"})
+            out[a] = m
+            continue
+        m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows)
+        st = stationarity(r, m)
+        if st < IC_MIN:
+            white = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
+            white.steps.append({"component": "slow part", "d_bic": st, "accepted": False,
+                                "reason": f"not stationary (ΔBIC {st:+.0f} for separate stretches): left to the probes"})
+            m = white
+        out[a] = m
+    return out
+
+
+PREDICTABLE = 1.5
+"""The correlated part is strong when the residual's variance is at least this many times the
+model's one-step prediction error (the innovations): selection is then made anew against it."""
+
+
+def predictable(m: NoiseModel, r: np.ndarray) -> bool:
+    """Whether the noise model predicts a material part of the residual ``r`` (:data:`PREDICTABLE`)."""
+    if m.is_white:
+        return False
+    return float(np.var(r)) >= PREDICTABLE * m.whitener().innovation_var
+
+
+def same_structure(old: dict[str, NoiseModel], new: dict[str, NoiseModel]) -> bool:
+    """Whether two sets of models have the same components per axis and whitening that differs little
+    (each variance within a factor 2)."""
+    for a, m in new.items():
+        o = old.get(a)
+        if o is None or m.is_white != o.is_white:
+            return False
+        if (m.flicker_b > 0) != (o.flicker_b > 0) or (m.rrw_k > 0) != (o.rrw_k > 0) or len(m.gm) != len(o.gm):
+            return False
+        pairs = [(m.flicker_b, o.flicker_b), (m.rrw_k, o.rrw_k)] + [(x[0], y[0]) for x, y in zip(m.gm, o.gm)]
+        if any(a_ > 0 and b_ > 0 and abs(math.log(a_ / b_)) > math.log(math.sqrt(2.0)) for a_, b_ in pairs):
+            return False
+    return True
+
+
+def findings(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.ndarray],
+             unexplained: list[dict[str, Any]], hidden: frozenset[str] = frozenset()) -> list[Finding]:
+    """The noise terms named on each axis with nothing unexplained (module docstring)."""
+    left = {u["axis"] for u in unexplained}
+    out: list[Finding] = []
+    for a, m in models.items():
+        if a in left or m.is_white:
+            continue
+        before = float(np.sqrt(np.mean((resid[a] - resid[a].mean()) ** 2)))
+        after = math.sqrt(m.whitener().innovation_var)
+        ev = {"noise_model": m.describe(), "d_bic": [s["d_bic"] for s in m.steps if s["accepted"]]}
+        if m.flicker_b > 0 and "bias_instability" not in hidden:
+            lo, hi = _flicker_taus(m)
+            out.append(Finding("bias_instability", a, {"b_dps": m.flicker_b, "tau_min_s": lo, "tau_max_s": hi},
+                               before, after, dict(ev)))
+        if m.rrw_k > 0 and "rate_random_walk" not in hidden:
+            out.append(Finding("rate_random_walk", a, {"k_dps_per_sqrt_s": m.rrw_k}, before, after, dict(ev)))
+        if "gauss_markov" not in hidden:
+            for sigma, tau in m.gm:
+                out.append(Finding("gauss_markov", a, {"sigma_dps": sigma, "tau_s": tau}, before, after, dict(ev)))
+    return out
+
+
+def _flicker_taus(m: NoiseModel) -> tuple[float, float]:
+    from bench.analysis.noise_model import flicker_range
+
+    taus, _ = flicker_range(m.dt_s, m.duration_s)
+    return float(taus[0]), float(taus[-1])
+
+
+def readout(r: np.ndarray, fs: float) -> dict[str, Any]:
+    """IEEE Std 952 read-outs of residual ``r`` (deg/s at ``fs`` Hz): ARW (deg/√h), bias instability
+    (deg/h), rate random walk (deg/h/√h), each with the τ it was read at (s) or the reason it is not."""
+    from bench.analysis.allan import analysis_m, overlapping_adev, read_noise_terms
+
+    if r.shape[0] < 64:
+        return {}
+    al = overlapping_adev(r, fs, m=analysis_m(r.shape[0], fs))
+    rd = read_noise_terms(al).readings
+    out: dict[str, Any] = {}
+    for key, term in (("arw_deg_per_sqrt_h", "arw"), ("bias_instability_deg_per_h", "bias_instability"),
+                      ("rrw_deg_per_h_per_sqrt_h", "rrw")):
+        t = rd[term]
+        out[key] = t.customary(t.value)
+        out[key.rsplit("_deg", 1)[0] + "_read"] = (
+            {"tau_s": t.tau_s, "how": t.how or None, "estimate_only": t.estimate_only} if t.value is not None
+            else {"reason": t.reason})
+    return out
+
+
+def section(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
+    """The ``noise`` section of the result: per axis the fitted model (IEEE 952 units), whether the fits
+    were generalised least squares against it, and the Allan read-outs of the residual."""
+    out = {}
+    for a, m in models.items():
+        out[a] = {"model": m.terms(), "describe": m.describe(), "whitened": a in p.whiten,
+                  "ieee952": readout(resid[a], p.fs)}
+    return out

@@ -1,0 +1,472 @@
+"""The sensor's own noise model, fitted from its data: white rate noise, flicker (bias instability),
+rate random walk and Gauss-Markov (correlated) noise; and the whitening filter that lets an
+analysis judge structure against that model instead of against white noise (``docs/diagnose.md``,
+"Noise model").
+
+Model of a residual series r_t sampled every Δ = 1/f_s seconds (bin means or raw samples), as a sum
+of independent processes (IEEE Std 952-1997 Annex C names; the flicker as the Gauss-Markov sum of
+:func:`bench.model.gyro.flicker_processes`, as the simulator makes it):
+
+* white rate noise, variance w per sample: angle random walk N = √(w·Δ) (deg/√s);
+* flicker (bias instability) B (deg/s): Gauss-Markov processes two per decade of correlation time
+  between Δ and the record length T, each of variance B²·ln r/π (one-sided PSD B²/(2πf), Allan
+  plateau 0.664·B, IEEE 952 Eq. C.14);
+* rate random walk K (deg/s/√s): a random walk with increments of variance K²·Δ;
+* Gauss-Markov processes (σ, τ_c): first-order, variance σ², correlation e^(−|t|/τ_c) (the hump of a
+  MEMS Allan curve; NPSAT1 IV.G.3 and the Allan literature's "Markov" term).
+
+Each correlated process is an AR(1) state (φ = e^(−Δ/τ), the random walk φ = 1), so the spectral
+density of the sum at ω (rad/sample) is
+
+    S(ω) = w + Σ_j v_j (1 − φ_j²) / |1 − φ_j e^(−iω)|² + K²Δ / |1 − e^(−iω)|².
+
+**Fitting** (:func:`fit_noise_model`): Whittle likelihood of the periodogram of r, averaged over
+log-spaced frequency bands (each band mean of L ordinates is Gamma(L, S/L)), maximised over the
+variances (log-parameters, L-BFGS-B) for a given set of components; components are added forward
+(flicker, random walk, a Gauss-Markov process at the best correlation time of a grid, up to
+:data:`MAX_COMPONENTS`) while the Bayesian information criterion drops by more than
+:data:`IC_MIN` and the component is material (its spectral density reaches :data:`MATERIAL_SHARE` of
+the total at some observed frequency).
+
+**Whitening** (:class:`Whitener`): the steady-state Kalman filter of that state-space model turns r
+into its innovations, which are white with variance S_ε when the model is right; as a transfer
+function it has its zeros at φ_j and its poles at the eigenvalues of F(I − KH), applied as second-
+order sections to every column of a design (generalised least squares by prewhitening). A segment's
+first innovations carry the start-up uncertainty of the slow states; they are scaled by
+√(S_ε/S_t) (the time-varying innovation variance of the filter started from the stationary state),
+so no single early row dominates a fit. Gaps in time start a new segment.
+
+The engine cannot tell a slow deterministic drift from bias instability or a random walk in one
+run: both are power at low frequency. The model takes whatever the deterministic search and the
+covariate probes leave; a second run (the drift repeats, noise does not) or a temperature channel
+(a drift that follows it is a term of the baseline) separates them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+IC_MIN = 10.0
+"""Required drop of the Whittle BIC for a component to join the noise model (as diagnose's IC_MIN)."""
+MATERIAL_SHARE = 0.1
+"""A component joins only if its spectral density is at least this share of the model's at some
+observed frequency (it shapes the spectrum; as the Allan excess test's 10 % in variance)."""
+MAX_COMPONENTS = 4
+"""Most correlated components (flicker, random walk, Gauss-Markov processes) in one model."""
+BANDS_PER_DECADE = 24
+"""Frequency bands per decade for the band-averaged Whittle likelihood (first ordinates kept single)."""
+GM_PER_DECADE = 3
+"""Gauss-Markov correlation times tried per decade (then refined)."""
+GM_RESOLVED = 1.0 / 3.0
+"""A Gauss-Markov correlation time is at most this share of the record: the spectrum must show its
+roll-off (a longer one is a random walk within the record, which the ``rrw`` component is)."""
+WHITE_FLOOR = 1e-6
+"""The white variance is at least this share of the series' variance (the filter needs R > 0)."""
+
+
+@dataclass
+class NoiseModel:
+    """A fitted noise model of a series sampled every ``dt_s`` seconds over ``duration_s``.
+
+    ``white_var``: white variance per sample ((deg/s)²); ``flicker_b``: B (deg/s) or 0;
+    ``rrw_k``: K (deg/s/√s) or 0; ``gm``: [(σ deg/s, τ_c s), ...]; ``loglik`` the Whittle
+    log-likelihood; ``steps``: the forward selection (component, ΔBIC, accepted)."""
+
+    dt_s: float
+    duration_s: float
+    white_var: float
+    flicker_b: float = 0.0
+    rrw_k: float = 0.0
+    gm: list[tuple[float, float]] = field(default_factory=list)
+    loglik: float = float("nan")
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    bin_rows: int = 1
+    """Raw samples averaged into each analysed sample (for the read-outs in physical units)."""
+
+    @property
+    def is_white(self) -> bool:
+        return self.flicker_b == 0 and self.rrw_k == 0 and not self.gm
+
+    def flicker_states(self) -> tuple[np.ndarray, np.ndarray]:
+        """(τ_j, variance_j) of the flicker's Gauss-Markov sum."""
+        if self.flicker_b <= 0:
+            return np.zeros(0), np.zeros(0)
+        taus, per_b = flicker_range(self.dt_s, self.duration_s)
+        return taus, np.full(taus.size, (self.flicker_b * per_b) ** 2)
+
+    def states(self) -> tuple[np.ndarray, np.ndarray]:
+        """AR(1) coefficients φ_j and driving-noise variances q_j of every correlated state."""
+        taus, var = self.flicker_states()
+        taus = list(taus) + [t for _, t in self.gm]
+        var = list(var) + [s * s for s, _ in self.gm]
+        phi = [math.exp(-self.dt_s / t) for t in taus]
+        q = [v * (1.0 - f * f) for v, f in zip(var, phi)]
+        if self.rrw_k > 0:
+            phi.append(1.0)
+            q.append(self.rrw_k ** 2 * self.dt_s)
+        return np.asarray(phi, float), np.asarray(q, float)
+
+    def psd(self, omega: np.ndarray) -> np.ndarray:
+        """Spectral density at ω (rad/sample), (deg/s)² per rad/sample·2π (white = w)."""
+        phi, q = self.states()
+        c = np.cos(omega)
+        out = np.full(np.shape(omega), self.white_var, dtype=float)
+        for f, qq in zip(phi, q):
+            out = out + qq / (1.0 - 2.0 * f * c + f * f)
+        return out
+
+    def terms(self) -> dict[str, Any]:
+        """The model in IEEE 952 units: ARW (deg/√h), B (deg/h), K (deg/h/√h), Gauss-Markov
+        (σ deg/s, τ_c s)."""
+        n = math.sqrt(self.white_var * self.dt_s)  # deg/√s
+        return {"arw_deg_per_sqrt_h": 60.0 * n,
+                "bias_instability_deg_per_h": 3600.0 * self.flicker_b if self.flicker_b > 0 else None,
+                "rrw_deg_per_h_per_sqrt_h": 3600.0 * 60.0 * self.rrw_k if self.rrw_k > 0 else None,
+                "gauss_markov": [{"sigma_dps": s, "tau_s": t} for s, t in self.gm]}
+
+    def describe(self) -> str:
+        t = self.terms()
+        parts = [f"white {t['arw_deg_per_sqrt_h']:.3g} deg/√h"]
+        if t["bias_instability_deg_per_h"] is not None:
+            parts.append(f"flicker B {t['bias_instability_deg_per_h']:.3g} deg/h")
+        if t["rrw_deg_per_h_per_sqrt_h"] is not None:
+            parts.append(f"rate random walk K {t['rrw_deg_per_h_per_sqrt_h']:.3g} deg/h/√h")
+        for g in t["gauss_markov"]:
+            parts.append(f"Gauss-Markov {g['sigma_dps']:.2g} deg/s, τc {g['tau_s']:.3g} s")
+        return " + ".join(parts)
+
+    def whitener(self) -> "Whitener | None":
+        """The prewhitening filter of this model (None when it is white)."""
+        return None if self.is_white else Whitener(self)
+
+
+def flicker_range(dt_s: float, duration_s: float) -> tuple[np.ndarray, float]:
+    """The flicker's Gauss-Markov correlation times (one sample to the record length, two per decade)
+    and σ per unit B (:func:`bench.model.gyro.flicker_processes`)."""
+    from bench.model.gyro import flicker_processes
+
+    return flicker_processes(dt_s, max(duration_s, 10.0 * dt_s))
+
+
+# ---- fitting --------------------------------------------------------------------------------------
+@dataclass
+class _Bands:
+    omega: np.ndarray
+    mean_i: np.ndarray
+    count: np.ndarray
+
+    @property
+    def ordinates(self) -> int:
+        return int(self.count.sum())
+
+
+def _bands(r: np.ndarray) -> _Bands:
+    """Band-averaged periodogram of the mean-removed series through a split-cosine taper (10 % at
+    each end, normalised to unit power: a random walk's jump between the record's end and start
+    would otherwise leak into every low ordinate): ordinates j = 1 … (n−1)/2 at ω_j = 2πj/n,
+    I_j = |Σ h_t r_t e^(−iω_j t)|²/Σh², grouped into log-spaced bands."""
+    n = r.shape[0]
+    h = _taper(n)
+    spec = np.fft.rfft((r - r.mean()) * h) * math.sqrt(n / float(np.dot(h, h)))
+    j = np.arange(1, (n - 1) // 2 + 1)
+    i_j = (spec.real[j] ** 2 + spec.imag[j] ** 2) / n
+    edges = np.unique(np.round(np.geomspace(1, j.size + 1, int(BANDS_PER_DECADE * math.log10(j.size + 1)) + 2)).astype(int))
+    edges = np.unique(np.concatenate([edges, [j.size + 1]]))
+    starts, ends = edges[:-1] - 1, edges[1:] - 1
+    csum = np.concatenate([[0.0], np.cumsum(i_j)])
+    wsum = np.concatenate([[0.0], np.cumsum(j)])
+    count = (ends - starts).astype(float)
+    omega = 2.0 * math.pi * ((wsum[ends] - wsum[starts]) / count) / n
+    return _Bands(omega, (csum[ends] - csum[starts]) / count, count)
+
+
+TAPER = 0.1
+"""Share of the record tapered at each end (split-cosine bell) before the periodogram."""
+
+
+def _taper(n: int) -> np.ndarray:
+    m = max(int(TAPER * n), 1)
+    h = np.ones(n)
+    ramp = 0.5 * (1.0 - np.cos(np.pi * (np.arange(m) + 0.5) / m))
+    h[:m] = ramp
+    h[n - m:] = ramp[::-1]
+    return h
+
+
+def _basis(kind: str, omega: np.ndarray, dt: float, duration: float, tau: float | None = None) -> np.ndarray:
+    """Spectral density of one component per unit parameter² (white: w, flicker: B², rrw: K²,
+    gm: σ²) at ω."""
+    c = np.cos(omega)
+    if kind == "white":
+        return np.ones_like(omega)
+    if kind == "rrw":
+        return dt / (2.0 - 2.0 * c)
+    if kind == "gm":
+        f = math.exp(-dt / tau)
+        return (1.0 - f * f) / (1.0 - 2.0 * f * c + f * f)
+    if kind == "flicker":
+        taus, per_b = flicker_range(dt, duration)
+        out = np.zeros_like(omega)
+        for t in taus:
+            f = math.exp(-dt / t)
+            out += per_b ** 2 * (1.0 - f * f) / (1.0 - 2.0 * f * c + f * f)
+        return out
+    raise ValueError(kind)
+
+
+def _whittle(theta: np.ndarray, G: np.ndarray, b: _Bands, offset: np.ndarray | float = 0.0) -> float:
+    """Band Whittle log-likelihood of S = G·θ (+ a fixed ``offset`` spectrum)."""
+    s = np.maximum(G @ theta + offset, 1e-300)
+    return float(-np.sum(b.count * (np.log(s) + b.mean_i / s)))
+
+
+def _fit(G: np.ndarray, b: _Bands, theta0: np.ndarray, offset: np.ndarray | float = 0.0) -> tuple[np.ndarray, float]:
+    """Maximise the Whittle likelihood over θ ≥ 0 (log-parameters), S = G·θ + ``offset``."""
+    from scipy.optimize import minimize
+
+    floor = np.maximum(theta0 * 1e-8, 1e-300)
+
+    def f(x: np.ndarray) -> tuple[float, np.ndarray]:
+        th = np.exp(x)
+        s = np.maximum(G @ th + offset, 1e-300)
+        val = -np.sum(b.count * (np.log(s) + b.mean_i / s))
+        grad_s = -b.count * (1.0 / s - b.mean_i / (s * s))
+        return -val, -(G.T @ grad_s) * th
+
+    x0 = np.log(np.maximum(theta0, floor))
+    res = minimize(f, x0, jac=True, method="L-BFGS-B", options={"maxiter": 300})
+    th = np.exp(res.x)
+    return th, _whittle(th, G, b, offset)
+
+
+def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[str, ...] = ("flicker", "rrw", "gm"),
+                    ic_min: float = IC_MIN, max_tau_s: float | None = None) -> NoiseModel:
+    """Fit the noise model of residual ``r`` (deg/s, one sample every ``dt_s`` s): white, then forward
+    selection of flicker, rate random walk and Gauss-Markov processes (module docstring). ``allow``
+    limits the kinds tried, ``max_tau_s`` the Gauss-Markov correlation times."""
+    r = np.asarray(r, dtype=float)
+    n = r.shape[0]
+    duration = n * dt_s
+    var = float(np.var(r))
+    model = NoiseModel(dt_s, duration, max(var, 1e-300), bin_rows=bin_rows)
+    if n < 64 or var <= 0:
+        return model
+    b = _bands(r)
+    m = b.ordinates
+    comps: list[tuple[str, float | None]] = [("white", None)]
+    G = _basis("white", b.omega, dt_s, duration)[:, None]
+    theta, ll = _fit(G, b, np.array([var]))
+    model.loglik = ll
+    lo_tau, hi_tau = 0.5 * dt_s, GM_RESOLVED * duration
+    if max_tau_s is not None:
+        hi_tau = max(min(hi_tau, max_tau_s), 1.01 * lo_tau)
+    taus = np.geomspace(lo_tau, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / lo_tau)) + 1, 2))
+    while len(comps) - 1 < MAX_COMPONENTS:
+        best = None
+        tried = []
+        for kind in allow:
+            if kind in ("flicker", "rrw") and any(c[0] == kind for c in comps):
+                continue
+            options = [(kind, float(t)) for t in taus] if kind == "gm" else [(kind, None)]
+            for k_, tau in options:
+                if k_ == "gm" and any(c[0] == "gm" and abs(math.log(c[1] / tau)) < 0.5 for c in comps):
+                    continue
+                col = _basis(k_, b.omega, dt_s, duration, tau)
+                G2 = np.column_stack([G, col])
+                scale = float(np.median(b.mean_i / np.maximum(col, 1e-300)))
+                th, ll2 = _fit(G2, b, np.concatenate([theta, [max(0.1 * scale, 1e-300)]]))
+                k_params = 2 if k_ == "gm" else 1
+                d_bic = -2.0 * (ll2 - ll) + k_params * math.log(m)
+                share = float(np.max(th[-1] * col / np.maximum(G2 @ th, 1e-300)))
+                tried.append((d_bic, k_, tau, th, ll2, col, share))
+        for d_bic, k_, tau, th, ll2, col, share in sorted(tried, key=lambda x: x[0]):
+            if k_ == "gm" and tau >= 0.99 * hi_tau:
+                continue  # a correlation time at the top of the grid is not resolved
+            if d_bic < -ic_min and share >= MATERIAL_SHARE:
+                best = (d_bic, k_, tau, th, ll2, col, share)
+                break
+        if best is None:
+            if tried:
+                d_bic, k_, tau, *_ = min(tried, key=lambda x: x[0])
+                model.steps.append({"component": k_, "tau_s": tau, "d_bic": d_bic, "accepted": False})
+            break
+        d_bic, k_, tau, th, ll2, col, share = best
+        if k_ == "gm":
+            tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, hi_tau)
+        comps.append((k_, tau))
+        G = np.column_stack([G, col])
+        theta, ll = th, ll2
+        model.steps.append({"component": k_, "tau_s": tau, "d_bic": d_bic, "share": share, "accepted": True})
+    model.loglik = ll
+    model.white_var = max(float(theta[0]), WHITE_FLOOR * var)
+    for (kind, tau), v in zip(comps[1:], theta[1:]):
+        if kind == "flicker":
+            model.flicker_b = math.sqrt(v)
+        elif kind == "rrw":
+            model.rrw_k = math.sqrt(v)
+        else:
+            model.gm.append((math.sqrt(v), float(tau)))
+    model.gm.sort(key=lambda g: g[1])
+    return model
+
+
+def _columns(model: NoiseModel, omega: np.ndarray) -> np.ndarray:
+    """The spectral basis of ``model``'s components at ω (white first) and their parameters θ."""
+    cols = [_basis("white", omega, model.dt_s, model.duration_s)]
+    if model.flicker_b > 0:
+        cols.append(_basis("flicker", omega, model.dt_s, model.duration_s))
+    if model.rrw_k > 0:
+        cols.append(_basis("rrw", omega, model.dt_s, model.duration_s))
+    for _, tau in model.gm:
+        cols.append(_basis("gm", omega, model.dt_s, model.duration_s, tau))
+    return np.column_stack(cols)
+
+
+def _theta(model: NoiseModel) -> np.ndarray:
+    th = [model.white_var]
+    if model.flicker_b > 0:
+        th.append(model.flicker_b ** 2)
+    if model.rrw_k > 0:
+        th.append(model.rrw_k ** 2)
+    th += [s * s for s, _ in model.gm]
+    return np.asarray(th, float)
+
+
+PARTS = 4
+"""Stretches of the record the stationarity check compares."""
+
+
+SLOW_SAMPLES = 20.0
+"""Components with correlation times of at least this many samples (and flicker, random walk) are
+the slow part the stationarity check tests; faster ones may change level between stretches."""
+
+
+def stationarity(r: np.ndarray, model: NoiseModel, parts: int = PARTS) -> float:
+    """ΔBIC of "each of ``parts`` consecutive stretches has its own slow-component variances" against
+    "the slow components of the whole record" (the fast ones, white and short Gauss-Markov, free in
+    each stretch under both; band Whittle likelihood of each stretch). Strongly negative when the slow
+    part is not stationary noise but a transient, a step, a drift or structure that follows a
+    covariate through the run (its power sits in some stretches only). +inf without slow components
+    (nothing to test) or when the stretches are too short."""
+    fast = [True] + [False] * (model.flicker_b > 0) + [False] * (model.rrw_k > 0) + [
+        t < SLOW_SAMPLES * model.dt_s for _, t in model.gm]
+    fast = np.asarray(fast)
+    k_slow = int((~fast).sum())
+    n = r.shape[0] // parts
+    if k_slow == 0 or n < 64:
+        return math.inf
+    th = _theta(model)
+    lr, m = 0.0, 0
+    for q in range(parts):
+        b = _bands(r[q * n:(q + 1) * n])
+        G = _columns(model, b.omega)
+        _, ll_free = _fit(G, b, th)
+        _, ll_shared = _fit(G[:, fast], b, th[fast], offset=G[:, ~fast] @ th[~fast])
+        lr += 2.0 * max(ll_free - ll_shared, 0.0)
+        m += b.ordinates
+    return -lr + parts * k_slow * math.log(max(m, 2))
+
+
+def _refine_gm(G: np.ndarray, b: _Bands, theta: np.ndarray, tau: float, dt: float, duration: float,
+               th: np.ndarray, ll: float, hi_tau: float) -> tuple[float, np.ndarray, float, np.ndarray]:
+    """The Gauss-Markov correlation time refined between the grid neighbours (golden section on
+    log τ of the profiled likelihood)."""
+    from scipy.optimize import minimize_scalar
+
+    step = math.log(10.0) / GM_PER_DECADE
+    lo = max(math.log(tau) - step, math.log(0.5 * dt))
+    hi = max(min(math.log(tau) + step, math.log(hi_tau)), lo)
+
+    def neg(x: float) -> float:
+        col = _basis("gm", b.omega, dt, duration, math.exp(x))
+        return -_fit(np.column_stack([G, col]), b, np.concatenate([theta, [th[-1]]]))[1]
+
+    res = minimize_scalar(neg, bounds=(lo, hi), method="bounded", options={"xatol": 0.02})
+    if -res.fun > ll:
+        tau = math.exp(res.x)
+        col = _basis("gm", b.omega, dt, duration, tau)
+        th, ll = _fit(np.column_stack([G, col]), b, np.concatenate([theta, [th[-1]]]))
+    else:
+        col = _basis("gm", b.omega, dt, duration, tau)
+    return tau, th, ll, col
+
+
+# ---- whitening ------------------------------------------------------------------------------------
+GAP_FACTOR = 1.5
+"""A time step longer than this many median steps starts a new segment of the filter."""
+TRANSIENT_TOL = 1e-3
+"""The start-up scaling runs until the innovation variance is within this share of its steady state."""
+TRANSIENT_MAX = 20_000
+"""... and for at most this many samples."""
+
+
+class Whitener:
+    """Prewhitening by the steady-state innovations filter of a :class:`NoiseModel` (module docstring).
+    ``apply(x, t)`` whitens (n,) or (n, q) arrays sampled at times ``t``."""
+
+    def __init__(self, model: NoiseModel):
+        from scipy.linalg import solve_discrete_are
+        from scipy.signal import zpk2sos
+
+        self.model = model
+        phi, q = model.states()
+        s = phi.size
+        F = np.diag(phi)
+        H = np.ones((1, s))
+        Q = np.diag(q)
+        R = np.array([[model.white_var]])
+        P = solve_discrete_are(F.T, H.T, Q, R)
+        S = float((H @ P @ H.T + R)[0, 0])
+        K = (P @ H.T) / S
+        A = F @ (np.eye(s) - K @ H)
+        poles = np.linalg.eigvals(A)
+        self.sos = zpk2sos(phi, poles, 1.0)
+        self.innovation_var = S
+        self.scale = self._transient(F, H, Q, R, P, S, phi, q)
+
+    @staticmethod
+    def _transient(F, H, Q, R, P_inf, S_inf, phi, q) -> np.ndarray:
+        """√(S_∞/S_t) for the first samples of a segment: the Riccati recursion from the stationary
+        covariance (a random walk's start: its variance over the record length)."""
+        p0 = np.where(phi < 1.0, q / np.maximum(1.0 - phi * phi, 1e-300), 0.0)
+        if np.any(phi >= 1.0):
+            p0 = np.where(phi >= 1.0, q * TRANSIENT_MAX, p0)
+        P = np.diag(p0)
+        out = []
+        for _ in range(TRANSIENT_MAX):
+            S = float((H @ P @ H.T + R)[0, 0])
+            out.append(math.sqrt(S_inf / S))
+            if abs(S - S_inf) <= TRANSIENT_TOL * S_inf:
+                break
+            K = (P @ H.T) / S
+            P = F @ (P - K @ H @ P) @ F.T + Q
+        return np.asarray(out)
+
+    def apply(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """``x`` (n,) or (n, q) whitened along its rows, segment by segment (gaps in ``t``)."""
+        from scipy.signal import sosfilt
+
+        x = np.asarray(x, dtype=float)
+        flat = x.ndim == 1
+        z = x[:, None] if flat else x
+        out = np.empty_like(z)
+        for lo, hi in segments(t):
+            seg = sosfilt(self.sos, z[lo:hi], axis=0)
+            k = min(self.scale.size, hi - lo)
+            seg[:k] *= self.scale[:k, None]
+            out[lo:hi] = seg
+        return out[:, 0] if flat else out
+
+
+def segments(t: np.ndarray) -> list[tuple[int, int]]:
+    """[lo, hi) row ranges of ``t`` without a gap (a step > GAP_FACTOR × the median step)."""
+    if t.shape[0] < 2:
+        return [(0, t.shape[0])]
+    d = np.diff(t)
+    cut = np.flatnonzero(d > GAP_FACTOR * float(np.median(d))) + 1
+    edges = np.concatenate([[0], cut, [t.shape[0]]])
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
