@@ -20,6 +20,7 @@ from bench.cli_common import add_force, epilog, quantity
 from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, KNOWN_ERRORS, InputError, InputErrors
 from bench.quantity_format import fmt_hms
 from bench.startup_signals import STOP_SIGNALS, StartupSignals, StoppedDuringStartup
+from bench.terminal_text import printable
 
 if TYPE_CHECKING:  # imported where used: `bench --help` and `bench --version` stay light (docs/benchmarks.md)
     from rich.console import Console
@@ -362,19 +363,35 @@ def main(argv: list[str] | None = None) -> int:
     except KNOWN_ERRORS as exc:
         if args.debug:
             raise
-        err.print(f"bench: {exc}", markup=False, soft_wrap=True)
+        err.print(f"bench: {printable(exc)}", markup=False, soft_wrap=True)
         return EXIT_FAILED
     except StoppedDuringStartup as exc:
-        err.print(f"bench: {exc}", markup=False, soft_wrap=True)
+        err.print(f"bench: {printable(exc)}", markup=False, soft_wrap=True)
         return EXIT_FAILED
     except KeyboardInterrupt:
         err.print("bench: interrupted")
         return EXIT_FAILED
+    except BrokenPipeError:
+        return stdout_gone()
     except Exception as exc:  # noqa: BLE001 - last line of defence: one line, not a traceback
         if args.debug:
             raise
-        err.print(f"bench: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)", markup=False, soft_wrap=True)
+        err.print(f"bench: internal error: {type(exc).__name__}: {printable(exc)} (run with --debug for the traceback)", markup=False,
+                  soft_wrap=True)
         return EXIT_FAILED
+
+
+def stdout_gone() -> int:
+    """The reader of stdout went away (``bench runs --json | head -c 10``): stop quietly with exit
+    code 1, as ``cat`` stops, instead of an internal error; stdout is pointed at /dev/null so that
+    Python's own flush at exit does not complain about the pipe again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no real stdout (a test's capture)
+        pass
+    return EXIT_FAILED
 
 
 # ---- run --------------------------------------------------------------------------------------
@@ -579,6 +596,7 @@ def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
 
         print(json.dumps(summary_json(summary, max_events=args.events), indent=2))
         return EXIT_OK
+    # texts of the file are data: render_summary shows their escape sequences and line breaks, never acts on them
     render_summary(summary, console, max_events=args.events, traffic=args.traffic)
     return EXIT_OK
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from bench.cli_common import Parser, epilog
 from bench.errors import EXIT_FAILED, EXIT_OK
+from bench.terminal_text import printable
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -91,7 +92,9 @@ def cmd_runs(args: argparse.Namespace, console: "Console") -> int:
     if args.json:
         print(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in rows], indent=2))
         return EXIT_OK
-    render_runs(rows, console)
+    from bench.terminal_text import printable_data
+
+    render_runs(printable_data(rows), console)  # texts of the run files are data: escapes shown, never acted on
     return EXIT_OK
 
 
@@ -254,10 +257,13 @@ def cmd_rebuild(args: argparse.Namespace, console: "Console") -> int:
             report = rebuild(cat, args.dir, recursive=args.recursive, on_file=line_progress)
         total_rows = cat.count()
     for path, reason in report.unreadable:
-        err.print(reason, markup=False, soft_wrap=True)
+        err.print(printable(reason), markup=False, soft_wrap=True)
+    for path, reason in report.skipped:
+        err.print(f"bench: warning: {reason}", markup=False, soft_wrap=True)
     console.print(
         f"catalogued {report.catalogued} of {report.files} run file(s) from {args.dir} in {report.wall_s:.2f} s "
-        f"({report.files_per_s:.1f} files/s); {len(report.unreadable)} unreadable; {display_url(url)} holds {total_rows} run(s)",
+        f"({report.files_per_s:.1f} files/s); {len(report.unreadable)} unreadable"
+        f"{f', {len(report.skipped)} link(s) out of the directory skipped' if report.skipped else ''}; {display_url(url)} holds {total_rows} run(s)",
         markup=False, highlight=False, soft_wrap=True)
     return EXIT_FAILED if report.unreadable else EXIT_OK
 

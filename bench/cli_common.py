@@ -22,6 +22,7 @@ from typing import Iterable
 
 from bench.errors import EXIT_BAD_INPUT, InputError
 from bench.outputs import exists_error as _exists
+from bench.outputs import refuse_special
 
 DEBUG_HELP = "show the traceback of an error instead of one line (accepted before or after the command)"
 
@@ -117,10 +118,9 @@ def check_output(path: Path | None, option: str, *, force: bool = False, inputs:
     for src in inputs:
         if src is not None and _same_file(path, src):
             raise InputError(f"{path} is also the input; write the output to another file", None, option)
+    refuse_special(path, option)
     if os.path.lexists(path) and not force:
         raise _exists(path, option)
-    if os.path.isdir(path):
-        raise InputError(f"{path} is a directory; give a file name", None, option)
     parent = Path(path).parent
     if not parent.is_dir():
         raise InputError(f"directory {parent} does not exist; create it or write elsewhere", None, option)

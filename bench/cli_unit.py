@@ -67,7 +67,9 @@ def cmd_unit(args: argparse.Namespace, console: "Console") -> int:
             tmp.write_text(build_package(h), encoding="utf-8")
         console.print(f"wrote {out}: {len(h.runs)} run(s) of {h.serial}, {len(h.figures)} key figure(s)", markup=False, highlight=False)
         return EXIT_OK
-    render_history(h, console)
+    from bench.terminal_text import printable_data
+
+    render_history(printable_data(h), console)  # texts of the catalogue and run files are data: escapes shown, never acted on
     return EXIT_OK
 
 

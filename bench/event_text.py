@@ -4,15 +4,19 @@ Some events carry JSON for programs (``bench inspect --json``, replay): an answe
 control action from the web station, the confirmation of an overdue calibration. ``bench inspect``,
 ``bench watch``, the web station's run page and the report show them as sentences instead:
 ``yes from alice (web 127.0.0.1) to mount_axis_z``, ``stop by alice (web 127.0.0.1)``. Any other
-message is shown as it was recorded.
+message is shown as it was recorded. Every text returned is :func:`bench.terminal_text.printable`:
+a name or answer decoded from the JSON (``\u001b`` there is a real ESC once decoded) shows its
+control characters as visible escapes and never acts on a terminal.
 
-Light on purpose (json only): every layer may use it.
+Light on purpose (json and :mod:`bench.terminal_text` only): every layer may use it.
 """
 
 from __future__ import annotations
 
 import json
 from typing import Any
+
+from bench.terminal_text import printable
 
 OPERATOR = "operator"
 CONTROL = "control"
@@ -42,7 +46,11 @@ def _who(d: dict[str, Any]) -> str:
 
 def event_text(kind: str, source: str, message: str) -> str:
     """The event's message for people: answers, confirmations and control actions as sentences;
-    everything else unchanged."""
+    everything else as recorded; control characters shown, never acted on (:func:`printable`)."""
+    return printable(_sentence(kind, message))
+
+
+def _sentence(kind: str, message: str) -> str:
     d = _json(message) if kind in (OPERATOR, CONTROL) else None
     if d is None:
         return message

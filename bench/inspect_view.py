@@ -8,6 +8,9 @@ that read at 80 columns.
 * Checks: one table (what, value, limits, outcome) that fits 80 columns without splitting.
 * Events: one table (run time, step, event, message) with the message wrapped; answers and control
   actions as sentences (:func:`bench.event_text.event_text`), never raw JSON.
+* Every text of the file is data: its control characters (escape sequences, line breaks) are shown
+  as visible escapes, never acted on (:mod:`bench.terminal_text`), including the texts decoded from
+  the JSON of check and operator events.
 
 Units: run times as H:MM:SS (and s in the steps' durations).
 """
@@ -25,6 +28,7 @@ from bench.quantity_format import fmt_hms, fmt_quantity, fmt_range, fmt_seconds
 from bench.record import layout
 from bench.record.checks import CheckResult, check_counts, check_results, checks_verdict, display_value
 from bench.run_mode import banner, is_evidence, mode_word
+from bench.terminal_text import printable, printable_data
 from bench.termtable import fit_tables
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -84,9 +88,9 @@ def check_rows(checks: Sequence[CheckResult], *, evidence: bool = True) -> tuple
     rows = []
     for c in checks:
         style = OUTCOME_STYLE.get(c.outcome, "") if evidence or c.outcome != "passed" else ""
-        name = Text(c.name)
-        name.append(f"\n{check_what(c)}", style="dim")
-        rows.append([name, check_value(c), check_limits(c), Text(c.outcome, style=style)])
+        name = Text(printable(c.name))
+        name.append(f"\n{printable(check_what(c))}", style="dim")
+        rows.append([name, printable(check_value(c)), printable(check_limits(c)), Text(printable(c.outcome), style=style)])
     return ["check", "value", "limits", "outcome"], rows
 
 
@@ -142,7 +146,9 @@ def render_summary(summary: "RunSummary", console: Console, max_events: int = 40
     """Print the run: its banner (a run not on real instruments), header (status ``waiting`` while a
     live run waits for the operator), instruments, streams, steps, checks (value with units, limits,
     outcome), the instrument traffic summarised per instrument, and the last ``max_events`` other
-    events with counts by kind (``traffic``: list the ``command``/``reply`` events too)."""
+    events with counts by kind (``traffic``: list the ``command``/``reply`` events too). The file's
+    texts are shown with their control characters escaped (:func:`bench.terminal_text.printable_data`)."""
+    summary = printable_data(summary)
     a = summary.attrs
     mode = str(a.get(layout.ATTR_MODE, ""))
     loud = banner_text(mode)
@@ -156,7 +162,7 @@ def render_summary(summary: "RunSummary", console: Console, max_events: int = 40
         status.append(f"  {summary.status_detail}", style="dim" if summary.status == layout.STATUS_RUNNING else "red")
     rows: list[tuple[str, Text | str]] = [
         ("procedure", f"{a.get(layout.ATTR_PROCEDURE_NAME, '')} ({a.get(layout.ATTR_PROCEDURE_PATH, '')})"),
-        ("file", str(summary.path)),
+        ("file", printable(summary.path)),
         ("status", status),
         ("started", str(a.get(layout.ATTR_STARTED_UTC, ""))),
         ("ended", str(a.get(layout.ATTR_ENDED_UTC, "")) or "-"),

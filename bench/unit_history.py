@@ -152,29 +152,41 @@ class UnitHistory:
 
 # ---- reading ---------------------------------------------------------------------------------------
 def unit_history(serial: str, *, runs_dir: Path, catalog: str | None = None, part: str | None = None,
-                 prepare: Callable[[Any], object] | None = None, field: str = "--runs-dir") -> UnitHistory:
+                 find: Callable[[Any], list[dict[str, Any]]] | None = None, only_runs_dir: bool = False,
+                 field: str = "--runs-dir") -> UnitHistory:
     """The history of unit ``serial`` from the catalogue (``catalog``, default ``runs_dir/catalog.sqlite``)
     and the run files its rows name. ``part``: the part number whose units form the lot (default: the
-    one the unit's runs recorded, the latest if several). ``prepare(catalog)`` runs first on the open
-    catalogue (the web station adds the run files not catalogued yet). :class:`InputError` for a
-    serial with no run, or no catalogue (named ``field``)."""
-    from bench.catalog.query import RunFilter, find_runs, parse_text
+    one the unit's runs recorded, the latest if several). ``find(filter)``, when given, supplies the
+    rows of a :class:`~bench.catalog.query.RunFilter` instead of the catalogue (the web station's
+    runs index: the catalogue read, never written, with the run files not catalogued yet).
+    ``only_runs_dir``: figures are read only from run files inside ``runs_dir`` (the web station: a
+    row naming a file elsewhere is listed, its file never read). :class:`InputError` for a serial
+    with no run, or no catalogue (named ``field``)."""
+    from bench.catalog.query import find_runs, parse_text
     from bench.catalog.store import open_catalog, resolve_url
 
     serial = parse_text(serial, "SERIAL") or ""
     if "*" in serial:
         raise InputError(f"one serial number, not a pattern: {serial!r} (bench runs --unit 'SN*' lists several)", None, "SERIAL")
-    url = resolve_url(catalog, runs_dir)
-    with open_catalog(url, create=prepare is not None, field=field) as cat:
-        if prepare is not None:
-            prepare(cat)
-        rows = find_runs(cat, RunFilter(unit=serial))
-        if not rows:
-            raise InputError(f"no catalogued run of unit {serial!r} (bench runs lists the units; bench catalog rebuild "
-                             f"{runs_dir} catalogues run files written elsewhere)", None, "SERIAL")
-        parts = [r["unit_part"] for r in rows if r["unit_part"]]
-        part = part or (parts[-1] if parts else "")
-        lot_rows = [r for r in find_runs(cat, RunFilter(part=part)) if r["unit_serial"] and r["unit_serial"] != serial] if part else []
+    if find is None:
+        url = resolve_url(catalog, runs_dir)
+        with open_catalog(url, create=False, field=field) as cat:
+            return _history(serial, part, lambda f: find_runs(cat, f), runs_dir, only_runs_dir)
+    return _history(serial, part, find, runs_dir, only_runs_dir)
+
+
+def _history(serial: str, part: str | None, find: Callable[[Any], list[dict[str, Any]]], runs_dir: Path,
+             only_runs_dir: bool) -> UnitHistory:
+    """:func:`unit_history` with its rows from ``find``."""
+    from bench.catalog.query import RunFilter
+
+    rows = find(RunFilter(unit=serial))
+    if not rows:
+        raise InputError(f"no catalogued run of unit {serial!r} (bench runs lists the units; bench catalog rebuild "
+                         f"{runs_dir} catalogues run files written elsewhere)", None, "SERIAL")
+    parts = [r["unit_part"] for r in rows if r["unit_part"]]
+    part = part or (parts[-1] if parts else "")
+    lot_rows = [r for r in find(RunFilter(part=part)) if r["unit_serial"] and r["unit_serial"] != serial] if part else []
     notes: list[str] = []
     if len(set(parts)) > 1:
         notes.append(f"the runs of {serial} recorded several part numbers ({', '.join(sorted(set(parts)))}); compared with {part}")
@@ -183,7 +195,7 @@ def unit_history(serial: str, *, runs_dir: Path, catalog: str | None = None, par
     entries = [_entry(r, runs_dir) for r in rows]
     figures: dict[tuple[str, str], Figure] = {}
     for e in entries:
-        for fig_key, name, signal, statistic, units, point in _points(e, notes):
+        for fig_key, name, signal, statistic, units, point in _points(e, notes, only_runs_dir):
             fig = figures.get(fig_key)
             if fig is None:
                 fig = figures[fig_key] = Figure(name, signal, statistic, units)
@@ -191,7 +203,7 @@ def unit_history(serial: str, *, runs_dir: Path, catalog: str | None = None, par
     lot: dict[tuple[str, str], dict[str, LotValue]] = {}
     for r in lot_rows:
         e = _entry(r, runs_dir)
-        for fig_key, _name, _signal, _stat, _units, point in _points(e, notes):
+        for fig_key, _name, _signal, _stat, _units, point in _points(e, notes, only_runs_dir):
             if fig_key not in figures:
                 continue
             have = lot.setdefault(fig_key, {}).get(r["unit_serial"])
@@ -252,11 +264,15 @@ def _checks(path: Path) -> list[Any]:
     return checks
 
 
-def _points(e: RunEntry, notes: list[str]) -> list[tuple[tuple[str, str], str, str, str, str, Point]]:
-    """The key-figure points of run ``e``: its checks on sensor channels with a figure statistic."""
+def _points(e: RunEntry, notes: list[str], only_runs_dir: bool = False) -> list[tuple[tuple[str, str], str, str, str, str, Point]]:
+    """The key-figure points of run ``e``: its checks on sensor channels with a figure statistic
+    (none, with a note, for a file outside the runs directory when ``only_runs_dir``)."""
     from bench.record.checks import display_value
 
     path = Path(e.path)
+    if only_runs_dir and e.run_id is None and path.exists():
+        notes.append(f"{path.name}: not in the station's runs directory; its figures are left out")
+        return []
     if not path.is_file():
         notes.append(f"{path.name}: the run file is not on this computer; its figures are left out")
         return []

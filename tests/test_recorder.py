@@ -445,8 +445,9 @@ def test_read_while_being_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     try:
         path = Path(lines.wait_for("created").split(" ", 1)[1])
         lines.wait_for("setup done")
-        with pytest.raises(InputError, match="open for writing outside SWMR mode|locked by the process writing it"):
-            read_run_summary(path)
+        # set up under a hidden name (HDF5 refuses readers then): the name holds a readable placeholder (issue 31, D5)
+        s = read_run_summary(path)
+        assert s.status == "running" and not s.streams and not s.events
         proc.stdin.write("start\n")
         proc.stdin.flush()
         rows = int(lines.wait_for("flushed").split()[1])

@@ -124,10 +124,14 @@ def parse_pressure(value: str | None, field: str = "--vacuum-below") -> float | 
     return torr
 
 
+MAX_LIMIT = 2**63 - 1
+"""Largest row limit (SQLite's and PostgreSQL's largest integer)."""
+
+
 def parse_limit(value: int | None, field: str = "--limit") -> int | None:
-    """A row limit: None or >= 1."""
-    if value is not None and value < 1:
-        raise InputError(f"must be at least 1, got {value}", None, field)
+    """A row limit: None or 1 .. :data:`MAX_LIMIT`."""
+    if value is not None and not 1 <= value <= MAX_LIMIT:
+        raise InputError(f"must be between 1 and {MAX_LIMIT}, got {value}", None, field)
     return value
 
 
@@ -163,8 +167,10 @@ def select_runs(f: RunFilter) -> sa.Select:
 
 
 def find_runs(cat: Catalog, f: RunFilter) -> list[dict[str, Any]]:
-    """The rows of filter ``f``, oldest start first, after :func:`refresh_running`."""
-    refresh_running(cat)
+    """The rows of filter ``f``, oldest start first, after :func:`refresh_running` (not on a
+    catalogue that is read-only here: its rows are listed as stored)."""
+    if not cat.read_only:
+        refresh_running(cat)
     rows = cat.select(select_runs(f))
     return rows[::-1] if f.limit is not None else rows
 

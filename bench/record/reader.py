@@ -496,6 +496,8 @@ def _unreadable(path: Path, reason: str) -> InputError:
 def _describe(exc: BaseException, path: Path | None = None) -> str:
     """A short reason for an h5py/HDF5 failure (of the file at ``path``, whose size it then gives)."""
     text = str(exc)
+    if isinstance(exc, DamagedFile):
+        return text
     if "already open for write" in text:
         # Set up (before SWMR mode) and finalising (after it) both leave this mark while they run; a
         # writer killed then, or whose last writes failed (a full disk), leaves it for good. Which
@@ -592,7 +594,7 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
         status=status,
         procedure_text=_read_text(f[layout.PROCEDURE_TEXT], limit),
         config_text=_read_text(f[layout.CONFIG_TEXT], limit),
-        instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in f[layout.INSTRUMENTS].items()},
+        instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in members(f[layout.INSTRUMENTS])},
         streams=streams,
         steps=_steps(events, live=status == layout.STATUS_RUNNING),
         events=events,
@@ -623,7 +625,7 @@ def _instrument_identities(f: h5py.File, attrs: dict[str, Any], events: list[Eve
             except (ValueError, KeyError, TypeError):
                 continue
     out: dict[str, InstrumentIdentity] = {}
-    for name, g in f[layout.INSTRUMENTS].items():
+    for name, g in members(f[layout.INSTRUMENTS]):
         a = {k: str(_plain(v)) for k, v in g.attrs.items()}
         due = a.get(layout.ATTR_CALIBRATION_DUE, "")
         due_date = _date_of(due)
@@ -671,16 +673,39 @@ def _stream_groups(f: h5py.File) -> dict[str, h5py.Group]:
     """Stream key -> group: the groups under ``/streams`` (one or two levels down) that hold a
     ``time`` dataset."""
     out: dict[str, h5py.Group] = {}
-    for inst, g in f[layout.STREAMS].items():
+    for inst, g in members(f[layout.STREAMS]):
         if not isinstance(g, h5py.Group):
             continue
         if isinstance(g.get(layout.TIME), h5py.Dataset):
             out[layout.stream_key(inst)] = g
             continue
-        for sub, sg in g.items():
+        for sub, sg in members(g):
             if isinstance(sg, h5py.Group) and isinstance(sg.get(layout.TIME), h5py.Dataset):
                 out[layout.stream_key(inst, sub)] = sg
     return out
+
+
+def members(g: h5py.Group) -> list[tuple[str, Any]]:
+    """``(name, object)`` of every member of group ``g``. h5py's ``items()`` gives None for a member
+    it cannot open (a link to nothing, a damaged object header), which later failed as
+    "'NoneType' object has no attribute 'attrs'"; here such a member raises ``ValueError`` naming
+    it and why, which the readers turn into "not a readable bench run file: /instruments/board: ..."."""
+    out = []
+    for name in g:
+        try:
+            obj = g[name]
+        except Exception as exc:  # noqa: BLE001 - KeyError (missing target), OSError (damaged header) ...
+            link = g.get(name, getlink=True)
+            where = f"{g.name.rstrip('/')}/{name}"
+            if isinstance(link, h5py.SoftLink):
+                raise DamagedFile(f"{where} is a link to {link.path}, which does not exist: the file is damaged") from None
+            raise DamagedFile(f"{where} cannot be opened ({_describe(exc)}): the file is damaged") from None
+        out.append((name, obj))
+    return out
+
+
+class DamagedFile(ValueError):
+    """A part of a run file that cannot be read, with a message that says which (shown as it is)."""
 
 
 def _column_order(g: h5py.Group) -> list[str]:

@@ -45,6 +45,7 @@ from bench.operators import describe as describe_operator
 from bench.quantity_format import fmt_quantity, fmt_range
 from bench.report.html import Cell, esc, figure_png, fmt, hms, page, table
 from bench.run_mode import banner, is_evidence, mode_word
+from bench.terminal_text import printable
 
 ANALYSES: dict[str, tuple[str, str]] = {
     "thermal": ("bench.analysis.thermal_cal", "thermal calibration"),
@@ -112,7 +113,7 @@ def build_report(run_path: str | Path) -> str:
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     mode = str(summary.attrs.get(layout.ATTR_MODE, ""))
     title = f"Run report: {name}" + ("" if is_evidence(mode) else f" ({mode_word(mode)})")
-    return page(title, shown, subtitle=f"{path.name}; report generated {generated} by bench {__version__}",
+    return page(title, shown, subtitle=f"{printable(path.name)}; report generated {generated} by bench {__version__}",
                 banner=banner(mode), watermark="" if is_evidence(mode) else mode_word(mode))
 
 
@@ -472,7 +473,7 @@ def section_summary(summary: RunSummary) -> str:
         duration = hms(run_time if run_time is not None else wall)
     rows.append(["duration (h:mm:ss)", duration])
     size = summary.path.stat().st_size if summary.path.exists() else 0
-    rows.append(["run file", f"{summary.path.resolve()} ({size / 1e6:.1f} MB)"])
+    rows.append(["run file", f"{printable(summary.path.resolve())} ({size / 1e6:.1f} MB)"])  # a name need not be UTF-8
     other = [s for s in summary.steps if s.type not in ("check", "bit") and s.outcome in ("failed", "aborted", "interrupted")]
     if other:
         rows.append(["other steps", Cell(", ".join(f"{s.index + 1} {s.name}: {s.outcome}" for s in other), "fail")])

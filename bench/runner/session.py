@@ -114,12 +114,15 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
                     lab.close()
                 except Exception:  # noqa: BLE001 - the file must still be finalised; the first failure is reported
                     pass
-            recorder.close("aborted", _startup_abort_reason(exc, doing))
-            if isinstance(exc, InstrumentOpenError):
-                # the run never started (nothing but identification was sent): no run file is
-                # kept and it was never catalogued; the error names the instrument and what to do
-                _discard(recorder.path)
-            else:  # an aborted start-up (declined calibration, a stop signal…) is on record
+            never_started = isinstance(exc, InstrumentOpenError)
+            try:
+                recorder.close("aborted", _startup_abort_reason(exc, doing))
+            finally:
+                if never_started:
+                    # the run never started (nothing but identification was sent): no run file is
+                    # kept and it was never catalogued; the error names the instrument and what to do
+                    _discard(recorder.path)
+            if not never_started:  # an aborted start-up (declined calibration, a stop signal…) is on record
                 (hook or RunCatalogHook(recorder.path, runs_dir, catalog)).run_ended()
         if isinstance(exc, StoppedDuringStartup):
             exc.run_file = recorder.path
@@ -151,8 +154,14 @@ def _startup_abort_reason(exc: BaseException, doing: str) -> str:
 
 
 def _discard(path: Path) -> None:
-    """Remove the run file of a run that never started (an instrument could not be opened)."""
-    try:
-        Path(path).unlink()
-    except OSError:
-        pass
+    """Remove the run file of a run that never started (an instrument could not be opened): its
+    name (the placeholder, or the finalised file moved over it) and the hidden file it was being
+    set up in (:func:`bench.record.destination.partial_path`), should closing have failed before
+    moving it."""
+    from bench.record.destination import partial_path
+
+    for p in (Path(path), partial_path(Path(path))):
+        try:
+            p.unlink()
+        except OSError:
+            pass

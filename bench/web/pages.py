@@ -1,9 +1,9 @@
 """The data behind the pages: the catalogue as a filtered table, a run as JSON, a live snapshot.
 
-The runs table is the catalogue of runs (``bench runs``'s query and filters); run files of the
-runs directory that the catalogue does not list yet (written by ``bench replay``, ``bench import``,
-a test, or killed before their row was written) are added to it first, as ``bench catalog
-rebuild`` would. A run page is ``bench inspect --json`` (:func:`bench.record.summary_json.summary_json`)
+The runs table is the catalogue of runs (``bench runs``'s query and filters) with the run files of
+the runs directory that the catalogue does not list yet (written by ``bench replay``, ``bench
+import``, a test, or killed before their row was written), read from the files and catalogued in
+the background (:mod:`bench.web.runs_index`: a request never writes the catalogue). A run page is ``bench inspect --json`` (:func:`bench.record.summary_json.summary_json`)
 plus the verdict of the report and the plottable channels; the live page reads the file as
 ``bench watch`` does (only what was added since the last read).
 """
@@ -34,22 +34,21 @@ def _json_value(v: Any) -> Any:
     return v
 
 
-def runs_table(runs_dir: Path, catalog: str | None, query: dict[str, str]) -> dict[str, Any]:
-    """The catalogue rows matching ``query`` (:data:`FILTERS`; empty values ignored), latest
-    :data:`MAX_ROWS`, newest first, each with its ``id`` (None for a file outside the runs directory).
-    Bad filter values raise :class:`InputError` naming the filter."""
-    from bench.catalog.query import RunFilter, find_runs, parse_mode, parse_since, parse_status, parse_text, parse_verdict
-    from bench.catalog.store import open_catalog, resolve_url
+def runs_table(runs_dir: Path, index: Any, query: dict[str, str]) -> dict[str, Any]:
+    """The rows matching ``query`` (:data:`FILTERS`; empty values ignored) from ``index``
+    (:class:`bench.web.runs_index.RunsIndex`), latest :data:`MAX_ROWS`, newest first, each with its
+    ``id`` (None for a file outside the runs directory), its mode (:func:`mode_facts`), and for a run
+    still writing its file what the file says now (:func:`live_row`: ``waiting`` at a prompt, run
+    time); and ``warnings`` (a catalogue that cannot be read, rows not catalogued yet). Bad filter
+    values raise :class:`InputError` naming the filter."""
+    from bench.catalog.query import RunFilter, parse_mode, parse_since, parse_status, parse_text, parse_verdict
     from bench.quantity_format import fmt_hms, fmt_number
 
     q = {k: (query.get(k) or "").strip() or None for k in FILTERS}
     f = RunFilter(unit=parse_text(q["unit"], "unit"), procedure=parse_text(q.get("procedure"), "procedure"),
                   status=parse_status(q["status"], "status"), verdict=parse_verdict(q["verdict"], "verdict"),
                   mode=parse_mode(q["mode"], "mode"), since=parse_since(q["since"], field="since"), limit=MAX_ROWS)
-    url = resolve_url(catalog, runs_dir)
-    with open_catalog(url) as cat:
-        add_uncatalogued(cat, runs_dir)
-        rows = find_runs(cat, f)
+    rows, warnings = index.table(f)
     out = []
     for r in reversed(rows):
         item = {k: _json_value(v) for k, v in r.items()}
@@ -64,7 +63,7 @@ def runs_table(runs_dir: Path, catalog: str | None, query: dict[str, str]) -> di
         item["pressure_text"] = fmt_number(p, 2) if p is not None else ""
         item["temperature_text"] = f"{fmt_number(lo, 3)} .. {fmt_number(hi, 3)}" if lo is not None and hi is not None else ""
         out.append(item)
-    return {"runs": out, "filters": {k: q[k] or "" for k in FILTERS}}
+    return {"runs": out, "filters": {k: q[k] or "" for k in FILTERS}, "warnings": warnings}
 
 
 def mode_facts(mode: str | None) -> dict[str, Any]:
@@ -94,32 +93,6 @@ def live_row(path: Path) -> dict[str, Any]:
     w = summary.waiting_for
     return {"status": summary.live_status, "run_time_s": summary.heartbeat_run_time_s,
             "waiting_for": w.text if w is not None else ""}
-
-
-_added_lock = threading.Lock()
-
-
-def add_uncatalogued(cat: Any, runs_dir: Path) -> int:
-    """Catalogue the run files of ``runs_dir`` (and below) that have no row yet; unreadable ones are skipped."""
-    import sqlalchemy as sa
-
-    from bench.catalog.rebuild import run_files
-    from bench.catalog.row import run_row
-    from bench.catalog.schema import runs
-
-    if not runs_dir.is_dir():
-        return 0
-    with _added_lock:
-        known = {r["path"] for r in cat.select(sa.select(runs.c.path))}
-        new = []
-        for p in run_files(runs_dir, recursive=True):
-            if str(p.resolve()) in known or str(p.absolute()) in known:
-                continue
-            try:
-                new.append(run_row(p))
-            except (InputError, OSError):
-                continue
-        return cat.upsert(new)
 
 
 def run_page(path: Path) -> dict[str, Any]:

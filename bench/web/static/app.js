@@ -99,6 +99,7 @@ async function loadRuns(f) {
   err.textContent = "";
   let d;
   try { d = await getJSON("/api/runs?" + f.toString()); } catch (e) { err.textContent = e.message; box.innerHTML = ""; return; }
+  err.textContent = (d.warnings || []).join("\n");  // a catalogue that cannot be read: the rows below come from the files
   const rows = d.runs.map((r) => `<tr class="run-row${r.evidence ? "" : " not-evidence"}" data-id="${esc(r.id)}" data-unit="${esc(r.unit_serial)}"
       data-status="${esc(r.status)}" data-mode="${esc(r.mode)}">
     <td class="nowrap">${esc((r.started_utc || "").replace("T", " ").replace(/:\d\dZ$/, ""))}</td>
