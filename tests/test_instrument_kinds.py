@@ -83,6 +83,37 @@ def test_no_core_module_names_a_kind():
     assert not offenders, "\n".join(offenders)
 
 
+
+def _literal_kind_names(path: Path, names: set[str]) -> list[tuple[int, set[str]]]:
+    """Tuple, list, set and dict literals of a module with the kind names they hold (line, names)."""
+    found = []
+    for n in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(n, (ast.Tuple, ast.List, ast.Set)):
+            elts = n.elts
+        elif isinstance(n, ast.Dict):
+            elts = [k for k in n.keys if k is not None] + list(n.values)
+        else:
+            continue
+        held = {e.value for e in elts if isinstance(e, ast.Constant) and e.value in names}
+        if held:
+            found.append((n.lineno, held))
+    return found
+
+
+def test_no_test_lists_the_kinds():
+    """No test spells out the kinds bench ships (as kinds or by their standard instrument names): a
+    test that did would skip a kind a lab installs. Each built-in kind's names are counted once."""
+    ours = [k for k in KINDS.values() if k.package == "bench"]
+    assert len(ours) >= 2
+    names_of = {k.name: {k.name, k.standard_name} - {None} for k in ours}
+    files = sorted((ROOT / "tests").rglob("*.py")) + sorted((ROOT / "examples").glob("*/tests/*.py"))
+    offenders = []
+    for path in files:
+        for line, held in _literal_kind_names(path, set().union(*names_of.values())):
+            if all(names & held for names in names_of.values()):
+                offenders.append(f"{path.relative_to(ROOT)}:{line}: {sorted(held)}")
+    assert not offenders, "take the kinds from bench.kinds.registry:\n" + "\n".join(offenders)
+
 # ---- config sections -----------------------------------------------------------------------------
 def _load(tmp_path: Path, body: str):
     from bench.config import load_config
