@@ -182,6 +182,8 @@ def test_the_example_validates_plans_runs_replays_and_reports(tmp_path):
     assert v.returncode == 0, v.stderr
     plan = run_cli("plan", str(PROCEDURE), "--config", str(CONFIG))
     assert plan.returncode == 0 and "supply" in plan.stdout, plan.stderr
+    flat = " ".join(plan.stdout.replace("│", " ").split())
+    assert "voltage 5 V" in flat and "current 0.1 A" in flat, plan.stdout  # the step's units, declared by the kind
     r, run = _run(tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
     from bench.record.reader import read_run_summary
