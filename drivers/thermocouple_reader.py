@@ -53,10 +53,7 @@ class ThermocoupleReader(Driver):
         self.port.close()
 
     def identify(self) -> dict[str, str]:
-        parts = [p.strip() for p in self.channel.query("*IDN?").split(",")]
-        if len(parts) != 4:
-            raise ProtocolError(f"thermocouples: unexpected *IDN? answer {','.join(parts)!r}")
-        return dict(zip(("vendor", "model", "serial", "firmware"), parts))
+        return self.channel.identify()
 
     def configure(self, channels: list[int], tc_type: str = "K") -> None:
         """Type ``tc_type`` thermocouples on ``channels`` (e.g. 101..108), °C, internal reference

@@ -71,9 +71,9 @@ def discover() -> Registry:
     from importlib.metadata import entry_points
 
     reg = Registry()
-    eps = sorted(entry_points(group=GROUP), key=lambda ep: (_dist_name(ep) != "bench", _dist_name(ep), ep.name))
-    for ep in eps:
-        package = _dist_name(ep)
+    names: dict[int, str] = {}  # a distribution's name parses its METADATA: once per distribution
+    found = [(_dist_name(ep, names), ep) for ep in entry_points(group=GROUP)]
+    for package, ep in sorted(found, key=lambda pe: (pe[0] != "bench", pe[0], pe[1].name)):
         key = f"{ep.name} ({package})"
         try:
             record = ep.load()
@@ -88,9 +88,12 @@ def discover() -> Registry:
     return reg
 
 
-def _dist_name(ep: Any) -> str:
+def _dist_name(ep: Any, names: dict[int, str]) -> str:
+    """The name of the distribution that declares ``ep`` (``"?"`` if none), cached in ``names``."""
     dist = getattr(ep, "dist", None)
-    return getattr(dist, "name", "") or "?"
+    if id(dist) not in names:
+        names[id(dist)] = getattr(dist, "name", "") or "?"
+    return names[id(dist)]
 
 
 def _refuse(ep_name: str, record: Any, reg: Registry) -> str:

@@ -85,10 +85,7 @@ class DcSupply(Driver):
     # ---- identity and errors ----------------------------------------------------------------
     def identify(self) -> dict[str, str]:
         """``*IDN?``: ``RIGOL TECHNOLOGIES,DP832,<serial>,<firmware>``."""
-        parts = [p.strip() for p in self.channel.query("*IDN?").split(",")]
-        if len(parts) != 4:
-            raise ProtocolError(f"{self.name}: unexpected *IDN? answer {','.join(parts)!r}")
-        return dict(zip(("vendor", "model", "serial", "firmware"), parts))
+        return self.channel.identify()
 
     def check_errors(self, doing: str) -> None:
         """Drain ``:SYST:ERR?``; :class:`DeviceFault` naming what was being done if any error was queued."""

@@ -4,25 +4,14 @@ readings plotted as they come, its limits shown, like any instrument's."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
 
-from tests.browser import TOKEN, Server, launch_browser
+from tests.browser import TOKEN, Server, launch_browser, until
 
 HERE = Path(__file__).resolve().parents[1]
 CONFIG = HERE / "configs" / "board_on_supply.yaml"
-
-
-def _until(page, cond, what: str, timeout_s: float = 30.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        page.wait_for_timeout(100)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
 def _rows(page, selector: str) -> int:
@@ -58,8 +47,8 @@ def test_the_live_page_plots_the_supply_and_shows_its_limits(browser, tmp_path):
         page.click("a.started-run")
         page.wait_for_selector("#prompt .question", timeout=30_000)
         current = "canvas[data-key='psu/monitor'][data-column=current1]"
-        r0 = _until(page, lambda: _rows(page, current), "the supply's current rows")
-        _until(page, lambda: _rows(page, current) > r0, "a plot update of the supply's current")
+        r0 = until(page, lambda: _rows(page, current), "the supply's current rows")
+        until(page, lambda: _rows(page, current) > r0, "a plot update of the supply's current")
         limits = page.locator("#limits-table").inner_text()
         assert "psu voltage" in limits and "5.25 V" in limits and "checked" in limits, limits
         page.click("#answer-yes")
