@@ -32,8 +32,15 @@ def _say(text: str) -> None:
     print(f"[dev.py] {text}", flush=True)
 
 
+def example_packages() -> list[Path]:
+    """The lab packages under ``examples/`` (each a directory with its own pyproject.toml: an instrument
+    kind bench finds by entry point, docs/instruments.md). The tests install and exercise them."""
+    return sorted(p.parent for p in (ROOT / "examples").glob("*/pyproject.toml"))
+
+
 def ensure_env() -> None:
-    """Create the virtual environment and install bench with its test extras when needed."""
+    """Create the virtual environment and install bench with its test extras, then the example
+    packages, when needed."""
     if sys.version_info < (3, 11):
         sys.exit(f"[dev.py] bench needs Python >= 3.11, this is {sys.version.split()[0]}")
     if not PY.exists():
@@ -42,7 +49,9 @@ def ensure_env() -> None:
         if result.returncode != 0 or not PY.exists():
             sys.exit("[dev.py] could not create a virtual environment; on Debian/Ubuntu install the 'python3-venv' package")
     # the stamp covers the install command too, so a change of how we install reinstalls
-    want = hashlib.sha256((ROOT / "pyproject.toml").read_bytes() + INSTALL_MODE.encode()).hexdigest()
+    examples = example_packages()
+    want = hashlib.sha256(b"".join([(ROOT / "pyproject.toml").read_bytes(), INSTALL_MODE.encode(),
+                                    *(p.name.encode() + (p / "pyproject.toml").read_bytes() for p in examples)])).hexdigest()
     if STAMP.exists() and STAMP.read_text().strip() == want:
         return
     _say("installing bench and its dependencies into .venv (once; again when pyproject.toml changes)")
@@ -50,6 +59,12 @@ def ensure_env() -> None:
            "-e", f"{ROOT}[test]"]
     if subprocess.run(cmd, cwd=ROOT).returncode != 0:
         sys.exit("[dev.py] installing dependencies failed (see the pip output above)")
+    for example in examples:  # after bench: each depends on it (already installed, so pip fetches nothing for it)
+        _say(f"installing the example package {example.relative_to(ROOT)}")
+        cmd = [str(PY), "-m", "pip", "install", "--disable-pip-version-check", "-q", "--config-settings",
+               INSTALL_MODE, "-e", str(example)]
+        if subprocess.run(cmd, cwd=ROOT).returncode != 0:
+            sys.exit(f"[dev.py] installing {example.relative_to(ROOT)} failed (see the pip output above)")
     STAMP.write_text(want + "\n")
 
 

@@ -196,6 +196,14 @@ def build_parser() -> argparse.ArgumentParser:
                       bad="bad config (one located line per problem)"))
     chk.add_argument("--config", type=Path, required=True, help="lab config YAML file (required)")
     chk.add_argument("--sim", action="store_true", help="check the simulators behind the drivers (implied by 'mode: sim' in the config)")
+    kd = icsub.add_parser(
+        "kinds", help="list the installed instrument kinds and the package each comes from",
+        description="The instrument kinds bench knows here (a config's 'driver:'), found by entry point (group "
+                    "bench.instruments): bench's own and those of installed packages, with the package, whether it has a "
+                    "simulator, the procedure steps it adds and its signals with units (docs/instruments.md).",
+        epilog=epilog("bench instruments kinds", "bench instruments kinds --json",
+                      ok="every kind listed", failed="a package declares a kind that could not be loaded (its line says why)"))
+    kd.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
     lb = sub.add_parser("lab", help="set up a lab config", description="Lab config housekeeping.",
                         epilog=epilog("bench lab init -o configs/lab.yaml", ok="see 'bench lab init --help'",
@@ -308,6 +316,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "calibrate-bench":
             return cmd_calibrate_bench(args, console)
         if args.command == "instruments":
+            if args.instruments_command == "kinds":
+                return cmd_instruments_kinds(args, console)
             return cmd_instruments_check(args, console)
         if args.command == "lab":
             return cmd_lab_init(args, console)
@@ -688,6 +698,31 @@ def cmd_instruments_check(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
+def cmd_instruments_kinds(args: argparse.Namespace, console: Console) -> int:
+    """The installed kinds (bench.kinds.registry): one line each, what could not be loaded after."""
+    import json
+
+    from bench.kinds import registry
+
+    reg = registry.registry()
+    if args.json:
+        print(json.dumps({"kinds": {k.name: {"package": k.package, "summary": k.summary, "simulator": k.sim is not None,
+                                             "streams": k.streams, "steps": [d.type for d in k.steps],
+                                             "signals": {s.shown: s.units for s in k.signals}, "docs": k.docs}
+                                    for k in reg.kinds.values()},
+                          "not_loaded": reg.problems}, indent=2))
+        return EXIT_FAILED if reg.problems else EXIT_OK
+    console.print(f"{len(reg.kinds)} instrument kind(s) installed (entry-point group {registry.GROUP}):", markup=False)
+    for k in reg.kinds.values():
+        extras = [f"steps: {', '.join(d.type for d in k.steps)}" if k.steps else "",
+                  "simulator" if k.sim is not None else "no simulator",
+                  f"signals: {', '.join(f'{s.shown} ({s.units or 1})' for s in k.signals)}" if k.signals else ""]
+        console.print(f"{k.name} ({k.package}): {k.summary}; " + "; ".join(e for e in extras if e), markup=False, soft_wrap=True)
+    for key, why in reg.problems.items():
+        console.print(f"NOT LOADED {key}: {why}", markup=False, soft_wrap=True)
+    return EXIT_FAILED if reg.problems else EXIT_OK
+
+
 def cmd_lab_init(args: argparse.Namespace, console: Console) -> int:
     """Write the lab config skeleton (:mod:`bench.lab_init`) to ``-o`` (``-`` for stdout)."""
     from bench import instruments_check, lab_init
@@ -714,17 +749,21 @@ def cmd_lab_init(args: argparse.Namespace, console: Console) -> int:
 def _refuse_taken_ports(config, names: list[str], path: Path) -> None:
     """:class:`InputError` (exit 2) when a TCP port the served simulators listen on is taken (by
     another 'bench sim serve' on the same config, or any program): checked before any starts."""
+    from bench.kinds import registry
+
+    for name in names:
+        inst = config.instruments[name]
+        if inst.sim is None or not inst.kind.sim.tcp_ports:
+            continue
+        for port, kind in registry.load(inst.kind.sim.tcp_ports)(inst.sim):
+            _refuse_taken_port(port, kind, name, path)
+
+
+def _refuse_taken_port(port: int, kind: str, name: str, path: Path) -> None:
     import errno
     import socket
 
-    for name in names:
-        sim = config.instruments[name].sim
-        if sim is None:
-            continue
-        port, kind = {"tvac": (sim.modbus_port if sim.transport != "rtu" else 0, "Modbus TCP"),
-                      "thermocouple_reader": (sim.scpi_port, "SCPI")}.get(sim.backend, (0, ""))
-        if not port:
-            continue
+    if port:
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
             probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the servers bind: TIME_WAIT is no obstacle
             try:

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from bench.errors import InputError
+from bench.kinds.record import LINK_WORDS
 
 if TYPE_CHECKING:  # pragma: no cover
     from bench.lab import Lab
@@ -73,7 +74,9 @@ def _link(target: FaultTarget, sub: str = ""):
     return target.sim.serial[sub]
 
 
-def _serial(fault: str, sub: str = "", **params) -> Callable[[FaultTarget, np.random.Generator, float | None], Clear | None]:
+def serial_fault(fault: str, sub: str = "", **params) -> Callable[[FaultTarget, np.random.Generator, float | None], Clear | None]:
+    """A fault class's start: inject ``fault`` into the target's serial link ``sub`` (``""``: its own;
+    a chamber's ``gauge``); ``params`` values may be functions of the class's random generator."""
     def start(t: FaultTarget, rng: np.random.Generator, duration: float | None) -> Clear | None:
         link = _link(t, sub)
         extra = {k: (v(rng) if callable(v) else v) for k, v in params.items()}
@@ -82,7 +85,9 @@ def _serial(fault: str, sub: str = "", **params) -> Callable[[FaultTarget, np.ra
     return start
 
 
-def _device(fault: str, on: Callable[[FaultTarget], Any] = lambda t: t.sim.device, **params) -> Callable[..., Clear | None]:
+def device_fault(fault: str, on: Callable[[FaultTarget], Any] = lambda t: t.sim.device, **params) -> Callable[..., Clear | None]:
+    """A fault class's start: the target's simulator ``inject``s ``fault`` (cleared after a transient
+    class's duration)."""
     def start(t: FaultTarget, rng: np.random.Generator, duration: float | None) -> Clear | None:
         dev = on(t)
         dev.inject(fault, **{k: (v(rng) if callable(v) else v) for k, v in params.items()})
@@ -98,43 +103,45 @@ def _disk_full(t: FaultTarget, rng: np.random.Generator, duration: float | None)
     return None
 
 
-_SERIAL_KINDS = ("acs_board", "thermocouple_reader", "stepper_bench")
-_LINK_WORDS = ("link", "no frames", "reconnect", "timeout", "not answer", "disconnected")
+_CORE: list[tuple[float, FaultClass]] = [
+    (1, FaultClass("serial_unplug", "transient", (), "serial cable pulled and plugged back in", (1.0, 8.0),
+                   LINK_WORDS, serial_fault("disconnect"))),
+    (2, FaultClass("serial_noise", "transient", (), "a burst of line noise (16-256 random bytes), once", None,
+                   LINK_WORDS + ("garbled", "CRC"), serial_fault("garbage", count=lambda r: int(r.integers(16, 257))))),
+    (3, FaultClass("serial_corrupt", "transient", (), "bit errors on the line (p = 1e-3 per byte)", (2.0, 20.0),
+                   LINK_WORDS + ("garbled", "CRC"), serial_fault("corrupt", p=1e-3))),
+    (10, FaultClass("stream_stall", "transient", (), "the device hangs: receives but sends nothing", (1.0, 20.0),
+                    LINK_WORDS, serial_fault("stall"))),
+    (15, FaultClass("disk_full", "hazard", ("recorder",), "the disk holding the run file fills up", None,
+                    ("disk", "recorder", "run file", "writing"), _disk_full)),
+]
+"""The core's fault classes (rank, class): a serial link's (each kind names those it suffers,
+``Kind.serial_faults``) and the recorder's. The kinds add their own (``Kind.faults``)."""
 
-FAULT_CLASSES: dict[str, FaultClass] = {c.name: c for c in [
-    FaultClass("serial_unplug", "transient", _SERIAL_KINDS, "serial cable pulled and plugged back in", (1.0, 8.0),
-               _LINK_WORDS, _serial("disconnect")),
-    FaultClass("serial_noise", "transient", _SERIAL_KINDS, "a burst of line noise (16-256 random bytes), once", None,
-               _LINK_WORDS + ("garbled", "CRC"), _serial("garbage", count=lambda r: int(r.integers(16, 257)))),
-    FaultClass("serial_corrupt", "transient", _SERIAL_KINDS, "bit errors on the line (p = 1e-3 per byte)", (2.0, 20.0),
-               _LINK_WORDS + ("garbled", "CRC"), _serial("corrupt", p=1e-3)),
-    FaultClass("gauge_unplug", "transient", ("tvac",), "the pressure gauge's serial cable pulled and plugged back", (1.0, 8.0),
-               _LINK_WORDS, _serial("disconnect", "gauge")),
-    FaultClass("modbus_timeout", "transient", ("tvac",), "the chamber controller stops answering Modbus requests", (1.0, 8.0),
-               _LINK_WORDS, _device("timeout")),
-    FaultClass("modbus_busy", "transient", ("tvac",), "the chamber controller answers exception 6 (device busy)", (1.0, 5.0),
-               _LINK_WORDS + ("exception", "busy"), _device("exception", code=6)),
-    FaultClass("modbus_disconnect", "transient", ("tvac",), "the Modbus TCP gateway drops and refuses connections", (1.0, 8.0),
-               _LINK_WORDS + ("refused", "connect"), _device("disconnect")),
-    FaultClass("can_error_frames", "transient", ("rate_table",), "a burst of CAN error frames (5-50), once", None,
-               _LINK_WORDS + ("error frame", "SDO"), _device("error_frames", count=lambda r: int(r.integers(5, 51)))),
-    FaultClass("can_bus_off", "transient", ("rate_table",), "the drives fall silent (bus-off as the host sees it)", (1.0, 8.0),
-               _LINK_WORDS + ("SDO", "silent"), _device("silent")),
-    FaultClass("stream_stall", "transient", ("acs_board",), "the sensor board hangs: receives but sends nothing", (1.0, 20.0),
-               _LINK_WORDS, _serial("stall")),
-    FaultClass("chamber_runaway", "hazard", ("tvac",), "chamber temperature runs away at 5-20 degC/min", None,
-               ("lab safety", "interlock", "temperature", "not under control"),
-               _device("runaway", rate_c_per_min=lambda r: float(r.uniform(5.0, 20.0)))),
-    FaultClass("control_sensor_open", "hazard", ("tvac",), "the chamber's control thermocouple opens", None,
-               ("input error", "open"), _device("open_sensor", input=1)),
-    FaultClass("thermocouple_open", "hazard", ("thermocouple_reader",), "the unit's thermocouple ch101 opens", None,
-               ("open", "no valid reading", "interlock"), _device("open", channel=101)),
-    FaultClass("table_stuck", "hazard", ("rate_table",), "the rate table's rotation axis seizes", None,
-               ("timeout", "never", "rate", "following", "stuck", "at rate"), _device("stuck")),
-    FaultClass("disk_full", "hazard", ("recorder",), "the disk holding the run file fills up", None,
-               ("disk", "recorder", "run file", "writing"), _disk_full),
-]}
-"""Every fault class, by name. Durations in s of run time."""
+
+def fault_classes() -> dict[str, FaultClass]:
+    """Every fault class, by name, in one order (the ranks: a seeded soak draws the same classes
+    whatever is installed besides): the core's and every installed kind's. Durations in s of run time."""
+    from dataclasses import replace
+
+    from bench.kinds import registry
+
+    ranked: list[tuple[float, str, FaultClass]] = []
+    installed = registry.kinds().values()
+    for rank, cls in _CORE:
+        kinds = cls.kinds or tuple(k.name for k in installed if cls.name in k.serial_faults)
+        ranked.append((rank, cls.name, replace(cls, kinds=kinds)))
+    for k in installed:
+        for d in k.faults:
+            start = (lambda path: lambda t, rng, duration: registry.load(path)(t, rng, duration))(d.start)
+            ranked.append((d.rank, d.name, FaultClass(d.name, d.severity, (k.name,), d.description, d.duration_s, d.explains, start)))
+    return {cls.name: cls for _, _, cls in sorted(ranked, key=lambda r: (r[0], r[1]))}
+
+
+def __getattr__(name: str):  # noqa: ANN202 - the module's lazy constant
+    if name == "FAULT_CLASSES":
+        return fault_classes()
+    raise AttributeError(name)
 
 
 @dataclass
@@ -168,7 +175,8 @@ def parse_fault_spec(text: str, where: str = "--inject-faults") -> FaultSpec:
     from bench.units import to_units
 
     spec = FaultSpec()
-    known = ", ".join(FAULT_CLASSES)
+    classes = fault_classes()
+    known = ", ".join(classes)
     items = [i.strip() for i in text.split(",") if i.strip()]
     if not items:
         raise InputError("empty fault spec; expected e.g. 'rate=3/h,seed=1' or 'serial_unplug@300s'", field=where)
@@ -176,7 +184,7 @@ def parse_fault_spec(text: str, where: str = "--inject-faults") -> FaultSpec:
         if "@" in item:
             name, _, when = item.partition("@")
             name = name.strip()
-            if name not in FAULT_CLASSES:
+            if name not in classes:
                 raise InputError(f"unknown fault class {name!r} (known: {known})", field=where)
             when, _, lasting = when.partition("/")
             try:
@@ -187,7 +195,7 @@ def parse_fault_spec(text: str, where: str = "--inject-faults") -> FaultSpec:
                                  field=where) from None
             if not (math.isfinite(t) and t >= 0) or (d is not None and not (math.isfinite(d) and d >= 0)):
                 raise InputError(f"{item!r}: times must be >= 0 s", field=where)
-            if d is not None and FAULT_CLASSES[name].duration_s is None:
+            if d is not None and classes[name].duration_s is None:
                 raise InputError(f"{item!r}: {name} has no duration (it happens once or lasts to the end of the run)", field=where)
             spec.at.append((t, name, d))
             continue
@@ -211,8 +219,8 @@ def parse_fault_spec(text: str, where: str = "--inject-faults") -> FaultSpec:
         elif key == "classes":
             for name in [n.strip() for n in value.split("+") if n.strip()]:
                 if name in ("transient", "hazard"):
-                    spec.classes.extend(c.name for c in FAULT_CLASSES.values() if c.severity == name)
-                elif name in FAULT_CLASSES:
+                    spec.classes.extend(c.name for c in classes.values() if c.severity == name)
+                elif name in classes:
                     spec.classes.append(name)
                 else:
                     raise InputError(f"unknown fault class {name!r} (known: transient, hazard, {known})", field=where)
@@ -236,14 +244,15 @@ def plan_faults(spec: FaultSpec, kinds: dict[str, str], duration_s: float, *, t0
     timeline (a soak) and are returned in run time; only classes with a target in this lab are drawn.
     """
     rng = rng if rng is not None else np.random.default_rng(spec.seed)
+    classes = fault_classes()
     out: list[ScheduledFault] = []
     for t, name, duration in spec.at:
-        f = _schedule(FAULT_CLASSES[name], t, kinds, rng, explicit=True)
+        f = _schedule(classes[name], t, kinds, rng, explicit=True)
         if f is not None and duration is not None:
             f.duration_s = duration
         out.append(f)
-    names = spec.classes or list(FAULT_CLASSES)
-    usable = [FAULT_CLASSES[n] for n in dict.fromkeys(names) if targets_for(FAULT_CLASSES[n], kinds)]
+    names = spec.classes or list(classes)
+    usable = [classes[n] for n in dict.fromkeys(names) if targets_for(classes[n], kinds)]
     if spec.rate_per_h > 0 and usable and duration_s > 0:
         t = rng.exponential(3600.0 / spec.rate_per_h)
         while t < duration_s:

@@ -19,9 +19,10 @@ import os
 import pwd
 import re
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 from bench.config import LabConfig, InstrumentConfig
+from bench.kinds import registry as kinds
 from bench.errors import KNOWN_ERRORS, DeviceFault, InstrumentTimeout, NotConfigured, ProtocolError
 
 HARDWARE_DOC = "docs/hardware.md"
@@ -35,13 +36,6 @@ MAX_PORTS_LISTED = 8
 DEFAULT_CAN_BITRATE = 500_000
 """Bit rate (bit/s) suggested when the config's URL gives none: the rate table's drives (docs/rate-table.md)."""
 
-TIMEOUT_NOTES: dict[str, str] = {
-    "acs_board": "the board streams binary frames at 115200 8N1 unless reconfigured",
-    "stepper_bench": "an Arduino may reset when the port opens (DTR) and GRBL answers only about 2 s later",
-    "thermocouple_reader": "the 34970A needs a null-modem cable and its RS-232 rate set on the front panel (Utility > Interface)",
-    "tvac": "the Watlow F4 ships at 9600 8N1, Modbus address 1; on RS-485 swap A and B if nothing answers",
-}
-"""Driver -> what most often makes it silent on a serial line."""
 
 
 @dataclass
@@ -134,12 +128,9 @@ class Endpoint:
 
 
 def endpoints(inst: InstrumentConfig) -> list[Endpoint]:
-    """The hardware endpoints of ``inst``'s ``port`` (and a chamber's ``gauge_port``); URLs that
-    need no device (``sim://``, ``loop://``, ``socket://``) give none."""
-    out = list(_endpoints_of(inst.port, "port"))
-    if inst.gauge_port:
-        out += _endpoints_of(inst.gauge_port, "gauge_port")
-    return out
+    """The hardware endpoints of ``inst``'s links (``port`` and what its kind adds: a chamber's
+    ``gauge_port``); URLs that need no device (``sim://``, ``loop://``, ``socket://``) give none."""
+    return [ep for option, url in inst.ports() for ep in _endpoints_of(url, option)]
 
 
 def _endpoints_of(url: str, option: str) -> Iterator[Endpoint]:
@@ -214,12 +205,16 @@ def hint_timeout(inst: InstrumentConfig, endpoint: Endpoint | None) -> str:
     if (endpoint is not None and endpoint.kind == "socketcan") or inst.port.startswith("can://"):
         return ("check the CAN bit rate (every node and the interface the same), the node ids (?node=N), 120 Ω "
                 "termination at both ends of the bus, and that the drives are powered")
+    note = inst.kind.timeout_note
+    powered = ""
+    if inst.powered_by is not None:
+        powered = (f"; it is powered by {inst.powered_by.instrument} output {inst.powered_by.output}, which a check "
+                   "does not switch on: switch it on first")
     if endpoint is not None and endpoint.kind == "tcp":
-        return ("the gateway answered nothing: check the unit id (?unit=N, Watlow F4 default 1) and the gateway's "
-                "serial side (9600 8N1 to the F4), wiring and power")
-    note = TIMEOUT_NOTES.get(inst.driver, "")
+        return ("the gateway answered nothing: check the unit id (?unit=N) and the gateway's serial side, wiring and power"
+                + (f"; {note}" if note else "") + powered)
     return (f"check the baud rate (config: {inst.baudrate} bit/s, must match the instrument), the wiring (TX/RX, "
-            f"ground; RS-485 A/B) and that the instrument is powered" + (f"; {note}" if note else ""))
+            f"ground; RS-485 A/B) and that the instrument is powered" + (f"; {note}" if note else "") + powered)
 
 
 def preflight(inst: InstrumentConfig) -> tuple[str, str] | None:
@@ -324,39 +319,10 @@ def _user() -> str:
 
 
 # ---- readings ------------------------------------------------------------------------------------
-def _acs_board(drv) -> str:
-    c = drv.get_config()
-    told = "" if c.get("read_back", True) else " (not read back: the board's frame description has no GET_CONFIG)"
-    return f"ODR {c['odr_hz']} Hz, moving average {c['moving_avg_n']}, sensors {'on' if c['sensor_power'] else 'off'}{told}"
-
-
-def _stepper_bench(drv) -> str:
-    s = drv.status()
-    return f"{s['state']}, angle {s['angle_deg']:.3f} deg, rate {s['rate_dps']:.3f} deg/s"
-
-
-def _thermocouple_reader(drv) -> str:
-    return f"reference junction {drv.reference_junction_c(101):.2f} degC"
-
-
-def _tvac(drv) -> str:
-    r = drv.read()
-    return f"air {r['air_temp_c']:.1f} degC, set point {r['set_point_c']:.1f} degC, {r['pressure_torr']:.3g} Torr"
-
-
-def _rate_table(drv) -> str:
-    r = drv.read()
-    return f"angle {r['angle_deg']:.3f} deg, rate {r['rate_dps']:.3f} deg/s, tilt {r['tilt_deg']:.3f} deg, {r['state']}"
-
-
-READINGS: dict[str, Callable[[Any], str]] = {
-    "acs_board": _acs_board,
-    "stepper_bench": _stepper_bench,
-    "thermocouple_reader": _thermocouple_reader,
-    "tvac": _tvac,
-    "rate_table": _rate_table,
-}
-"""Driver name -> one non-invasive reading, formatted with its units."""
+def reading(inst: InstrumentConfig, drv: Any) -> str:
+    """One reading that changes nothing, formatted with its units (the kind's ``reading``); ``""``
+    for a kind that declares none."""
+    return kinds.load(inst.kind.reading)(drv) if inst.kind.reading else ""
 
 
 def transport_of(url: str) -> str:
@@ -385,17 +351,17 @@ def check_instruments(config: LabConfig, *, sim: bool) -> list[CheckRow]:
         except (*KNOWN_ERRORS, OSError, ValueError) as exc:
             rows.append(CheckRow(name, transport_of(endpoint), endpoint, "", "", *diagnose_failure(inst, exc)))
             continue
-        identity = reading = hint = ""
+        identity = value = hint = ""
         try:
             drv = lab.instruments[name]
             endpoint = lab.ports[name]
             ident = drv.identify()
             identity = " ".join(str(ident.get(k, "")) for k in ("vendor", "model", "serial") if ident.get(k))
-            reading = READINGS[inst.driver](drv)
+            value = reading(inst, drv)
             status = "ok"
         except (*KNOWN_ERRORS, OSError, ValueError, KeyError) as exc:
             status, hint = diagnose_failure(inst, exc)
         finally:
             lab.close()
-        rows.append(CheckRow(name, transport_of(endpoint), endpoint, identity, reading, status, hint))
+        rows.append(CheckRow(name, transport_of(endpoint), endpoint, identity, value, status, hint))
     return rows

@@ -17,23 +17,16 @@ from typing import Any, Callable
 from bench.clock import Clock, VirtualClock, WallClock
 from bench.config import InstrumentConfig, LabConfig
 from bench.errors import BenchError, InputError, InputErrors
+from bench.kinds import registry as kinds
 from bench.sim import registry
 from bench.sim.factory import TRANSPORTS, SimInstrument, build_devices, serial_url
 from bench.sim.world import World
-from drivers.acs_board import AcsBoard
-from drivers.rate_table import RateTable
-from drivers.stepper_bench import StepperBench
-from drivers.thermocouple_reader import ThermocoupleReader
-from drivers.tvac import TvacChamber
 
-DRIVER_CLASSES: dict[str, Any] = {
-    "acs_board": AcsBoard,
-    "stepper_bench": StepperBench,
-    "thermocouple_reader": ThermocoupleReader,
-    "tvac": TvacChamber,
-    "rate_table": RateTable,
-}
-"""Config ``driver`` name -> driver class (each has ``open(url, baudrate=, timeout_s=, on_traffic=, ...)``)."""
+
+def driver_class(inst: InstrumentConfig) -> Any:
+    """The driver class of ``inst``'s kind (``Kind.driver``, imported on first use; each has
+    ``open(url, baudrate=, timeout_s=, on_traffic=, **open_kwargs)``)."""
+    return kinds.load(inst.kind.driver)
 
 DRYRUN_TRANSPORT_ENV = "BENCH_DRYRUN_TRANSPORT"
 """Environment variable choosing how a dry-run reaches its simulators: ``inprocess`` (default) or ``socket``."""
@@ -69,6 +62,10 @@ class Lab:
     """Instrument name -> how to open its driver again (same URL and settings)."""
     kinds: dict[str, str] = field(default_factory=dict)
     """Instrument name -> driver kind (``tvac``, ``rate_table``, ...), from the config."""
+    powered_by: dict[str, tuple[str, str]] = field(default_factory=dict)
+    """Instrument name -> (instrument, output) that powers it, from the config (``powered_by``)."""
+    powered_up: dict[str, str] = field(default_factory=dict)
+    """Instrument name -> what its supply was told when the lab opened it (``power_up``)."""
     signals: dict[str, Any] = field(default_factory=dict)
     """Board name -> the signals of its frame description (:class:`bench.procedure.signals.StreamSignals`)."""
     config_limits: dict[str, dict[str, tuple]] = field(default_factory=dict)
@@ -101,16 +98,71 @@ class Lab:
 
 
 def driver_kwargs(inst: InstrumentConfig) -> dict[str, Any]:
-    """Driver-specific keyword arguments of ``open`` from the config (hardware URLs included)."""
-    if inst.driver == "stepper_bench":
-        return {"setup": inst.bench_setup}
-    if inst.driver == "tvac":
-        return {"gauge_url": inst.gauge_port, "gauge_baudrate": inst.gauge_baudrate, "safe_set_point_c": inst.safe_set_point_c}
-    if inst.driver == "thermocouple_reader":
-        return {"monitor_channels": inst.channels, "tc_type": inst.tc_type}
-    if inst.driver == "acs_board":
-        return {"compensation": inst.compensation, "description": inst.frames}
-    return {}
+    """Kind-specific keyword arguments of ``open`` from the config (hardware URLs included)."""
+    return inst.open_kwargs()
+
+
+def needs_clock(inst: InstrumentConfig, sim: bool) -> bool:
+    """Whether ``inst``'s driver waits on the lab's clock: its kind says so, or its link is CAN (the
+    port's URL, or a simulator on CAN)."""
+    return inst.kind.needs_clock or inst.port.startswith("can://") or (sim and inst.sim is not None and inst.sim.transport == "can")
+
+
+def power_order(config: LabConfig, names: list[str]) -> list[str]:
+    """``names`` with every instrument after the one that powers it (``powered_by``), else in order."""
+    out: list[str] = []
+
+    def add(name: str, seen: tuple[str, ...] = ()) -> None:
+        link = config.instruments[name].powered_by
+        if link is not None and link.instrument in names and link.instrument not in seen:
+            add(link.instrument, (*seen, name))
+        if name not in out:
+            out.append(name)
+
+    for n in names:
+        add(n)
+    return out
+
+
+def open_drivers(lab: "Lab", config: LabConfig, names: list[str], kwargs: dict[str, dict[str, Any]],
+                 on_traffic: "TrafficSink | None", *, explain: bool = False) -> None:
+    """Open the driver of each of ``names`` on ``lab.ports`` (filling ``lab.instruments`` and
+    ``lab.openers``), a supply before what it powers; before a powered instrument is opened, its
+    supply's output is switched on as the config sets it (``power_up``), so the unit answers when
+    identified. The same for a run, a dry-run and a replay (the replay's backends answer the same
+    exchanges). ``explain``: a failure is an :class:`InstrumentOpenError` naming the instrument with
+    what to do (a real lab), else the driver's error as it is."""
+    for name in power_order(config, names):
+        inst = config.instruments[name]
+        link = inst.powered_by
+        if link is not None and link.instrument in lab.instruments:
+            told = lab.instruments[link.instrument].power_up(link.output)
+            lab.powered_up[name] = f"{link.instrument} output {link.output}: {told}"
+        hook = None
+        if on_traffic is not None:
+            hook = (lambda n: (lambda d, t, raw: on_traffic(n, d, t, raw)))(name)
+        opener = (lambda c, url, i, h, kw: (lambda: c.open(url, baudrate=i.baudrate, timeout_s=i.timeout_s, on_traffic=h, **kw)))(
+            driver_class(inst), lab.ports[name], inst, hook, kwargs[name])
+        lab.openers[name] = opener
+        try:
+            lab.instruments[name] = opener()
+        except Exception as exc:
+            if not explain:
+                raise
+            from bench.instruments_check import diagnose_failure
+
+            problem, hint = diagnose_failure(inst, exc)
+            raise InstrumentOpenError(name, problem, hint, exc) from exc
+
+
+def describe_lab(lab: Lab, config: LabConfig, names: list[str]) -> None:
+    """What a lab knows of its instruments from the config: kinds, signals, limits, power links."""
+    lab.kinds = {name: config.instruments[name].driver for name in names}
+    lab.signals = config.signals()
+    lab.config_limits = config.limits()
+    lab.powered_by = {name: (config.instruments[name].powered_by.instrument, config.instruments[name].powered_by.output)
+                      for name in names if config.instruments[name].powered_by is not None
+                      and config.instruments[name].powered_by.instrument in names}
 
 
 class InstrumentOpenError(BenchError):
@@ -163,8 +215,7 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
     ports: dict[str, str] = {}
     kwargs: dict[str, dict[str, Any]] = {name: driver_kwargs(config.instruments[name]) for name in names}
     for name in names:
-        if config.instruments[name].driver == "rate_table" or config.instruments[name].port.startswith("can://") or (
-                sim and config.instruments[name].sim is not None and config.instruments[name].sim.transport == "can"):
+        if needs_clock(config.instruments[name], sim):
             kwargs[name]["clock"] = clock  # waits run on the lab's clock (virtual in a dry-run)
     for name, s in sims.items():
         for sub, dev in s.serial.items():
@@ -177,29 +228,10 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
     lab = Lab(clock, "sim" if sim else "hardware", instruments, ports, sims,
               {name: config.instruments[name].poll_interval_s for name in names}, world,
               {name: config.instruments[name].reconnect_timeout_s for name in names})
-    lab.kinds = {name: config.instruments[name].driver for name in names}
-    lab.signals = config.signals()
-    lab.config_limits = config.limits()
+    describe_lab(lab, config, names)
     lab.safe_state_timeouts = {name: config.instruments[name].safe_state_timeout_s for name in names}
     try:
-        for name in names:
-            inst = config.instruments[name]
-            hook = None
-            if on_traffic is not None:
-                hook = (lambda n: (lambda d, t, raw: on_traffic(n, d, t, raw)))(name)
-            cls = DRIVER_CLASSES[inst.driver]
-            opener = (lambda c, url, i, h, kw: (lambda: c.open(url, baudrate=i.baudrate, timeout_s=i.timeout_s, on_traffic=h, **kw)))(
-                cls, ports[name], inst, hook, kwargs[name])
-            lab.openers[name] = opener
-            try:
-                instruments[name] = opener()
-            except Exception as exc:
-                if sim:
-                    raise
-                from bench.instruments_check import diagnose_failure
-
-                problem, hint = diagnose_failure(inst, exc)
-                raise InstrumentOpenError(name, problem, hint, exc) from exc
+        open_drivers(lab, config, names, kwargs, on_traffic, explain=not sim)
     except Exception:
         lab.close()
         raise

@@ -2,7 +2,7 @@
 
 One instrument entry per serial port (its USB description, VID:PID and the stable
 ``/dev/serial/by-id`` path as ``port``) and per SocketCAN interface, each with ``driver: CHOOSE``
-and the five drivers to choose from, a commented ``sim:`` section, and the station name. The file
+and the installed kinds to choose from (with what each kind says about its set-up), a commented ``sim:`` section, and the station name. The file
 is YAML that :func:`bench.config.load_config` accepts once every driver is chosen (and the entries
 of ports that are no instrument are deleted); until then the loader names each entry still to
 choose. See docs/hardware.md.
@@ -17,25 +17,32 @@ import socket
 from datetime import datetime, timezone
 
 from bench import __version__
-from bench.config import CONFIG_SCHEMA, DRIVERS
+from bench.config import CONFIG_SCHEMA
+from bench.kinds import registry
 from bench.identity import check_identity_text
 from bench.instruments_check import SerialPort
 
 CHOOSE = "CHOOSE"
 """The placeholder driver of every entry (not a driver: the loader refuses it until replaced)."""
 
-STANDARD_NAMES = ("acs_board", "stepper_bench", "thermocouples", "tvac", "rate_table")
-"""Instrument names the procedure library uses (configs/sim.yaml)."""
+
+
+def standard_names() -> list[str]:
+    """Instrument names the procedure library uses (configs/sim.yaml): each kind's ``standard_name``."""
+    return [k.standard_name for k in registry.kinds().values() if k.standard_name]
+
 
 ARPHRD_CAN = "280"
 """``/sys/class/net/NAME/type`` of a CAN interface (linux/if_arp.h)."""
 
-LOOKS_LIKE: dict[int, str] = {
-    0x2341: "an Arduino: the stepper bench runs stock GRBL 1.1 on one (driver: stepper_bench; set-up: docs/stepper-bench.md)",
-    0x2A03: "an Arduino: the stepper bench runs stock GRBL 1.1 on one (driver: stepper_bench; set-up: docs/stepper-bench.md)",
-    0x16D0: "a CANable (SLCAN): the rate table's CAN bus (driver: rate_table, port: can://slcan/PATH?bitrate=500000&node=1)",
-}
-"""USB vendor id -> what such a port usually is on this bench (a comment in the skeleton, never a choice)."""
+def looks_like() -> dict[int, str]:
+    """USB vendor id -> what such a port usually is on this bench (each kind's ``usb_ids``; a comment
+    in the skeleton, never a choice)."""
+    out: dict[int, str] = {}
+    for k in registry.kinds().values():
+        for vid, what in k.usb_ids:
+            out.setdefault(vid, what)
+    return out
 
 
 def can_interfaces() -> list[str]:
@@ -64,13 +71,13 @@ def skeleton(ports: list[SerialPort], cans: list[str], station: str) -> str:
     """The config text for ``ports`` and CAN interfaces ``cans`` at ``station``."""
     station = check_identity_text(station, None, "--station")
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%MZ")
-    choices = " | ".join(DRIVERS)
+    choices = " | ".join(registry.kinds())
     lines = [
         f"# Lab config skeleton written by `bench lab init` on {_comment(socket.gethostname())} at {stamp} (bench {__version__}).",
         "# For every instrument entry below:",
         f"#   1. choose its driver: {choices}",
         "#      (and delete the entries of ports that are not instruments of this bench);",
-        f"#   2. rename it to the name the procedures use: {', '.join(STANDARD_NAMES)};",
+        f"#   2. rename it to the name the procedures use: {', '.join(standard_names())};",
         "#   3. check baudrate and timeout against the instrument's own settings; add this lab's limits,",
         "#      e.g. limits: {set_point: [-30 degC, 80 degC]} (docs/procedures.md, \"Limits\").",
         "# Then: bench instruments check --config THIS_FILE   (docs/hardware.md; every key: configs/lab.example.yaml)",
@@ -107,8 +114,9 @@ def _serial_entry(port: SerialPort, choices: str) -> list[str]:
                                    f"USB {port.vid_pid}" if port.vid_pid else "",
                                    f"serial {port.serial_number}" if port.serial_number else "") if x)
     lines = [f"  # {port.device}" + (f": {_comment(about)}" if about else "")]
-    if port.vid is not None and port.vid in LOOKS_LIKE:
-        lines.append(f"  # looks like {LOOKS_LIKE[port.vid]}")
+    seen = looks_like()
+    if port.vid is not None and port.vid in seen:
+        lines.append(f"  # looks like {seen[port.vid]}")
     path = port.by_id or port.device
     if port.by_id:
         stable = f"= {port.device} now; the by-id path survives replugs"
@@ -120,12 +128,17 @@ def _serial_entry(port: SerialPort, choices: str) -> list[str]:
         f"  {_key(port.device)}:",
         f"    driver: {CHOOSE}                  # {choices}",
         f"    port: {_scalar(path)}   # {stable}",
-        "    # tvac: port: modbus-rtu://PATH (Watlow F4, 9600 8N1, address 1) and gauge_port: PATH of the TPG 261",
-        "    # baudrate: 115200              # bit/s; default 115200, tvac 9600; the 34970A: as set on its front panel",
+        *(f"    # {k.config_hint}" for k in registry.kinds().values() if k.config_hint),
+        f"    # baudrate: 115200              # bit/s; default 115200{_other_baud_rates()}",
         "    timeout: 0.5 s",
         "    # sim: {backend: SAME_AS_DRIVER}   # uncomment for dry-runs of this lab with --sim (configs/sim.yaml)",
     ]
     return lines
+
+
+def _other_baud_rates() -> str:
+    """``, tvac 9600``: the kinds whose serial link defaults to another rate."""
+    return "".join(f", {k.name} {k.baudrate}" for k in registry.kinds().values() if k.baudrate != 115200)
 
 
 def _can_entry(iface: str, choices: str) -> list[str]:

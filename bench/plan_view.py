@@ -43,9 +43,28 @@ def plan_total(est: "Estimate") -> str:
 
 DURATION_FIELDS = ("duration", "settle", "hold", "timeout", "dwell")
 """Step fields that are durations, shown in s (the estimate columns give h:mm:ss)."""
-FIELD_UNITS = {"set_point": "degC", "ramp": "degC/min", "rate": "deg/s", "accel": "deg/s^2", "angle": "deg", "pressure": "Torr",
-               "odr": "Hz"}
-"""Units of the other numeric step fields (a band or a check limit takes its signal's units)."""
+
+
+def field_units(step_type: str, field: str) -> str:
+    """Units of a numeric step field as shown, from the step's declaration (its kind's, for a kind's
+    step: ``set_point`` degC, ``ramp`` degC/min, ``accel`` deg/s^2, a supply's ``voltage`` V);
+    ``""`` where it declares none (a band or a check limit takes its signal's units)."""
+    from bench.procedure.schema import step_types
+    from bench.quantity_format import unit_text
+
+    spec = step_types().get(step_type)
+    f = spec.fields.get(field) if spec else None
+    return unit_text(f.units if f else "").replace("**", "^")
+
+
+def _shows_timeout(step) -> bool:
+    """A step's ``timeout`` is shown where the step waits for the lab (:data:`bench.kinds.WAIT_TIMEOUT`)
+    and, for a step that may not wait (``wait: no``), only when it does."""
+    from bench.kinds import WAIT_TIMEOUT
+    from bench.procedure.schema import step_types
+
+    spec = step_types().get(step.type)
+    return bool(spec) and spec.fields.get("timeout") is WAIT_TIMEOUT and ("wait" not in spec.fields or bool(step.params.get("wait")))
 
 
 def describe_parts(step, kinds: dict[str, str] | None = None) -> list[str]:
@@ -54,13 +73,13 @@ def describe_parts(step, kinds: dict[str, str] | None = None) -> list[str]:
     Hz; a band in its signal's units; a check's limits in the check's display units (a
     scale-factor error limit of 0.05 reads ``-5 .. 5 %``). ``kinds``: instrument -> driver (for
     the units of signals; default the standard instrument names)."""
-    from bench.procedure.signals import DEFAULT_KINDS, parse_signal, signal_units
+    from bench.procedure.signals import default_kinds, parse_signal, signal_units
     from bench.quantity_format import fmt_quantity, fmt_range
     from bench.record.checks import display_value
 
     def units_of(signal: str) -> str:
         try:
-            return signal_units(signal, (kinds or DEFAULT_KINDS).get(parse_signal(signal)[0]))
+            return signal_units(signal, (kinds or default_kinds()).get(parse_signal(signal)[0]))
         except KeyError:
             return ""
 
@@ -83,18 +102,16 @@ def describe_parts(step, kinds: dict[str, str] | None = None) -> list[str]:
             parts.append(f"max difference {fmt_quantity(d, u)}")
         return parts
     for k, v in p.items():
-        if k in ("instrument", "name") or v in ("", None) or (k == "timeout" and step.type not in ("set_temperature", "pump_down", "vent", "wait_until_stable")):
-            continue
-        if k == "timeout" and step.type == "set_temperature" and not p.get("wait"):
+        if k in ("instrument", "name") or v in ("", None) or (k == "timeout" and not _shows_timeout(step)):
             continue
         if isinstance(v, bool):
             parts.append(f"{k} {'yes' if v else 'no'}")
         elif isinstance(v, (int, float)) and k in DURATION_FIELDS:
             parts.append(f"{k} {fmt_quantity(v, 's', 6)}")
         elif isinstance(v, (int, float)) and k == "band":
-            parts.append(f"{k} {fmt_quantity(v, signal_u if step.type == 'wait_until_stable' else 'degC')}")
-        elif isinstance(v, float) or (isinstance(v, int) and k in FIELD_UNITS):
-            parts.append(f"{k} {fmt_quantity(v, FIELD_UNITS.get(k, ''))}")
+            parts.append(f"{k} {fmt_quantity(v, field_units(step.type, k) or signal_u)}")
+        elif isinstance(v, float) or (isinstance(v, int) and field_units(step.type, k)):
+            parts.append(f"{k} {fmt_quantity(v, field_units(step.type, k))}")
         else:
             parts.append(f"{k} {v}")
     return parts

@@ -32,7 +32,9 @@ import h5py
 import numpy as np
 
 from bench.errors import InputError
-from bench.faults import FAULT_CLASSES, FaultSpec
+from bench.faults import FaultSpec, fault_classes
+from bench.kinds import registry
+from bench.kinds.record import Kind
 from bench.record import layout
 
 FAULT_WINDOW_SLACK_S = 10.0
@@ -90,7 +92,7 @@ class SoakReport:
         aborted safely -> data lost."""
         lines = ["| fault class | severity | injected | survived | aborted safely | data lost (rows) |",
                  "|---|---|---|---|---|---|"]
-        for name, cls in FAULT_CLASSES.items():
+        for name, cls in fault_classes().items():
             t = self.by_class.get(name, ClassTally())
             lines.append(f"| `{name}` | {cls.severity} | {t.injected} | {t.survived} | {t.aborted_safely} | {t.data_lost_rows} |")
         lines.append(f"| **all** | | {self.faults_injected} | {sum(t.survived for t in self.by_class.values())} | "
@@ -190,7 +192,7 @@ def _assess(session, entry: dict[str, Any], report: SoakReport) -> None:
         reason = entry.get("abort_reason", "")
         t_abort = float(entry.get("run_time_s") or 0.0)
         for f in sorted(injected, key=lambda f: -f.t_s):
-            if f.t_s <= t_abort + 1e-6 and _explains(f, reason):
+            if f.t_s <= t_abort + 1e-6 and _explains(f, reason, registry.get(session.lab.kinds.get(f.target, ""))):
                 cause = f
                 break
         safe = summary is not None and _safe_state_reached(summary, session)
@@ -214,13 +216,16 @@ def _assess(session, entry: dict[str, Any], report: SoakReport) -> None:
         report.by_class[injected[-1].cls.name].data_lost_rows += lost
 
 
-def _explains(f, reason: str) -> bool:
+def _explains(f, reason: str, kind: Kind | None) -> bool:
+    """Whether the abort ``reason`` is what fault ``f`` on an instrument of ``kind`` explains: it
+    names the instrument (or what messages call its kind: "chamber"), a hazard's words, or a
+    stream's silence."""
     low = reason.lower()
     if f.cls.name == "disk_full":
         return any(w in low for w in f.cls.explains)
-    return f.target.lower() in low or (f.target == "tvac" and "chamber" in low) or \
+    return f.target.lower() in low or (kind is not None and kind.what.lower() in low) or \
         (f.cls.severity == "hazard" and any(w.lower() in low for w in f.cls.explains)) or \
-        (f.target == "acs_board" and "no frames" in low)
+        (kind is not None and kind.streams and "no frames" in low)
 
 
 def _safe_state_reached(summary, session) -> bool:
@@ -253,7 +258,7 @@ def _stream_keys(f: h5py.File) -> list[str]:
 
 def _board_frames_lost(path: Path, injected, session) -> int:
     """Board frames missing from the file (frame-counter gaps) outside the windows of faults on the board's link."""
-    board = [n for n, k in session.lab.kinds.items() if k == "acs_board"]
+    board = [n for n, k in session.lab.kinds.items() if getattr(registry.get(k), "streams", False)]
     if not board:
         return 0
     name = board[0]

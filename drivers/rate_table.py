@@ -334,8 +334,9 @@ class RateTable(Driver):
         return "; ".join(done)
 
     # ---- status -----------------------------------------------------------------------------
-    def monitor_columns(self) -> list[tuple[str, str]]:
-        return [("angle", "deg"), ("rate", "deg/s"), ("tilt", "deg"), ("statusword", "1"), ("tilt_statusword", "1")]
+    def monitor_columns(self) -> list[str]:
+        """Columns of :meth:`monitor` (units deg, deg/s, deg and two dimensionless status words, declared by the kind)."""
+        return ["angle", "rate", "tilt", "statusword", "tilt_statusword"]
 
     def monitor(self) -> dict[str, float]:
         """Angle (deg), rate (deg/s), tilt (deg) and both status words, logged every poll interval:

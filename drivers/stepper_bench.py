@@ -253,8 +253,9 @@ class StepperBench(Driver):
             self._top_up(pos)
         return {"state": st.state, "angle_deg": pos % 360.0, "position_deg": pos, "rate_dps": self._rate_of(st)}
 
-    def monitor_columns(self) -> list[tuple[str, str]]:
-        return [("angle", "deg"), ("rate", "deg/s")]
+    def monitor_columns(self) -> list[str]:
+        """Columns of :meth:`monitor` (deg, deg/s, declared by the kind)."""
+        return ["angle", "rate"]
 
     def monitor(self) -> dict[str, float]:
         """Angle (deg, 0..360) and rate (deg/s) of the bench, logged every poll interval."""

@@ -53,10 +53,7 @@ class ThermocoupleReader(Driver):
         self.port.close()
 
     def identify(self) -> dict[str, str]:
-        parts = [p.strip() for p in self.channel.query("*IDN?").split(",")]
-        if len(parts) != 4:
-            raise ProtocolError(f"thermocouples: unexpected *IDN? answer {','.join(parts)!r}")
-        return dict(zip(("vendor", "model", "serial", "firmware"), parts))
+        return self.channel.identify()
 
     def configure(self, channels: list[int], tc_type: str = "K") -> None:
         """Type ``tc_type`` thermocouples on ``channels`` (e.g. 101..108), °C, internal reference
@@ -103,11 +100,11 @@ class ThermocoupleReader(Driver):
                 scan.temps_c[ch] = v
         return scan
 
-    def monitor_columns(self) -> list[tuple[str, str]]:
-        """Configure the monitored channels (if not configured yet) and name one column per channel."""
+    def monitor_columns(self) -> list[str]:
+        """Configure the monitored channels (if not configured yet) and name one column per channel (degC)."""
         if not self.channels:
             self.configure(self.monitor_channels, self.tc_type)
-        return [(f"ch{c}", "degC") for c in self.channels]
+        return [f"ch{c}" for c in self.channels]
 
     def monitor(self) -> dict[str, float]:
         """One scan, °C per channel column; an open thermocouple reads NaN."""

@@ -68,6 +68,14 @@ class LineChannel:
         self._write(line.encode("ascii") + self.eol, line)
         return self._read_line(line, self._budget())[0]
 
+    def identify(self) -> dict[str, str]:
+        """``*IDN?`` (IEEE 488.2 common command): its four comma-separated fields as ``vendor``,
+        ``model``, ``serial``, ``firmware``; :class:`ProtocolError` naming the instrument otherwise."""
+        parts = [p.strip() for p in self.query("*IDN?").split(",")]
+        if len(parts) != 4:
+            raise ProtocolError(f"{self.name}: unexpected *IDN? answer {','.join(parts)!r}")
+        return dict(zip(("vendor", "model", "serial", "firmware"), parts))
+
     def transact(self, line: str) -> list[str]:
         """Send ``line``; return the information lines received before ``ok``.
 

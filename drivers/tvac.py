@@ -79,10 +79,10 @@ class TvacChamber(Driver):
             "alarms": c.read_alarms(),
         }
 
-    MONITOR_COLUMNS = (("air_temp", "degC"), ("mount_temp", "degC"), ("pressure", "Torr"))
+    MONITOR_COLUMNS = ("air_temp", "mount_temp", "pressure")
 
-    def monitor_columns(self) -> list[tuple[str, str]]:
-        """Columns of :meth:`monitor` (name, units), for the run file's ``tvac/monitor`` stream."""
+    def monitor_columns(self) -> list[str]:
+        """Columns of :meth:`monitor` (their units: degC, degC, Torr, declared by the ``tvac`` kind)."""
         return list(self.MONITOR_COLUMNS)
 
     def monitor(self) -> dict[str, float]:

@@ -112,3 +112,15 @@ def make_run_file(runs_dir: Path, *, rows: int = 200, unit: str = "", procedure:
     rec.tick(t_end)
     rec.close(status, abort_reason)
     return rec.path
+
+
+def until(page, cond, what: str, timeout_s: float = 30.0):
+    """Poll ``cond()`` from Python until it is true and return its value (the page's CSP forbids
+    evaluating strings in it); :class:`AssertionError` naming ``what`` after ``timeout_s`` s."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        v = cond()
+        if v:
+            return v
+        page.wait_for_timeout(100)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")

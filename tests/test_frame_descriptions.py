@@ -26,7 +26,7 @@ from hypothesis import given, settings, strategies as st
 from bench.board_frames import load_frame_description
 from bench.clock import VirtualClock
 from bench.errors import InputErrors
-from bench.procedure.signals import SIGNALS, VECTOR_COLUMNS
+from bench.procedure.signals import kind_signals
 from bench.sim import registry
 from drivers.acs_board import AcsBoard
 from drivers.board_frames import parse_reply
@@ -86,7 +86,8 @@ def lab_board(tmp_path_factory):
 def test_ours_is_a_description_and_the_default_signals_are_its_signals():
     d = builtin_description()
     columns, vectors = d.signal_table()
-    assert columns == SIGNALS["acs_board"] and vectors == VECTOR_COLUMNS["acs_board"]
+    ours = kind_signals("acs_board")  # the kind's declared signals (bench/kinds/acs_board)
+    assert columns == ours.columns and vectors == ours.vectors
     assert (d.data_frame_len, d.header_len, d.check_at) == (38, 4, 36)  # docs/acs-board-protocol.md "Data frame"
     assert [c[0] for c in d.stream_columns()] == ["counter", "board_time", "gyro", "accel", "mag", "temp", "status"]
 

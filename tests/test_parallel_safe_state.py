@@ -12,7 +12,13 @@ from pathlib import Path
 import pytest
 
 from bench.clock import VirtualClock, WallClock
-from bench.config import SAFE_STATE_TIMEOUT_S, load_config
+from bench.config import load_config
+from bench.kinds import registry
+
+
+def SAFE(kind: str) -> float:
+    """The kind's default safe-state deadline (s)."""
+    return registry.get(kind).safe_state_timeout_s
 from bench.errors import InputError, InputErrors
 from bench.faults import parse_fault_spec
 from bench.lab import Lab, open_lab
@@ -84,15 +90,15 @@ def test_the_table_stops_within_its_deadline_while_the_chamber_is_unreachable(tm
     # the table: told at the abort, its stop confirmed within its own deadline (run time and wall time)
     (table,) = [e for e in summary.events if e.kind == "safe_state" and e.source == "rate_table"]
     assert "quick stop" in table.message
-    assert 0 < table.t_s - abort.t_s <= SAFE_STATE_TIMEOUT_S["rate_table"]
-    assert table.wall_unix - abort.wall_unix <= SAFE_STATE_TIMEOUT_S["rate_table"]
+    assert 0 < table.t_s - abort.t_s <= SAFE("rate_table")
+    assert table.wall_unix - abort.wall_unix <= SAFE("rate_table")
     data = json.loads(table.data)
-    assert data["outcome"] == "confirmed" and data["deadline_s"] == SAFE_STATE_TIMEOUT_S["rate_table"]
+    assert data["outcome"] == "confirmed" and data["deadline_s"] == SAFE("rate_table")
     assert data["t_told_s"] == pytest.approx(abort.t_s) and data["t_end_s"] == pytest.approx(table.t_s)
     # the chamber: its safe state was attempted through a reconnection, and how it ended is recorded
     (chamber,) = outcome_events(summary, "tvac")
     cdata = json.loads(chamber.data)
-    assert cdata["outcome"] in ("confirmed", "failed", "missed") and cdata["deadline_s"] == SAFE_STATE_TIMEOUT_S["tvac"]
+    assert cdata["outcome"] in ("confirmed", "failed", "missed") and cdata["deadline_s"] == SAFE("tvac")
     assert chamber.t_s - abort.t_s <= cdata["deadline_s"]
     assert any(e.kind == "fault" and e.source == "tvac" and "safe state" in e.message for e in summary.events)
     assert table.t_s < chamber.t_s  # the table did not wait for the chamber's reconnection
@@ -168,7 +174,7 @@ def test_a_safe_state_hanging_past_its_deadline_delays_no_other_in_virtual_time(
     abort = the_abort(summary)
     (table,) = outcome_events(summary, "rate_table")
     assert table.kind == "safe_state" and json.loads(table.data)["outcome"] == "confirmed"
-    assert table.t_s - abort.t_s <= SAFE_STATE_TIMEOUT_S["rate_table"] and table.wall_unix - abort.wall_unix < 5
+    assert table.t_s - abort.t_s <= SAFE("rate_table") and table.wall_unix - abort.wall_unix < 5
     (hung,) = outcome_events(summary, "hanging")
     data = json.loads(hung.data)
     assert hung.kind == "error" and data["outcome"] == "missed" and "not confirmed within its deadline 0.5 s" in hung.message
@@ -252,7 +258,7 @@ def test_safe_state_timeout_is_read_per_instrument_with_a_default_per_kind(tmp_p
     path.write_text(CONFIG.format(extra="    safe_state_timeout: 2.5 s\n"))
     cfg = load_config(path)
     assert cfg.instruments["table"].safe_state_timeout_s == 2.5
-    assert cfg.instruments["tvac"].safe_state_timeout_s == SAFE_STATE_TIMEOUT_S["tvac"]
+    assert cfg.instruments["tvac"].safe_state_timeout_s == SAFE("tvac")
 
 
 @pytest.mark.parametrize("bad, says", [("0 s", "between 0.1 s and 300 s"), ("1 h", "between 0.1 s and 300 s"),

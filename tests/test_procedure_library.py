@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bench.validate import load_checked
+from bench.config import load_config
 from bench.errors import InputError, InputErrors
 from bench.procedure import parse_procedure
 
@@ -130,8 +131,8 @@ BAD_KEYS = ["recrod", "set_temp", "rate_step", "for-each", "calll", "vibrat", "u
 MUTATION_TARGETS = [p for p in LIBRARY if p.stem in ("rate_transfer", "hysteresis", "estcube_gyro_thermal",
                                                      "vibe_functional", "moving_average_sweep")]
 _TEXTS = {p: p.read_text() for p in MUTATION_TARGETS}
-_KINDS = {"acs_board": "acs_board", "stepper_bench": "stepper_bench", "thermocouples": "thermocouple_reader",
-          "tvac": "tvac", "rate_table": "rate_table"}
+_KINDS = load_config(SIM_CONFIG).kinds()
+"""Instrument name -> kind of the simulated lab the library is written for."""
 
 
 def _mutate(text: str, line_idx: int, mode: int, choice: int) -> str:

@@ -150,7 +150,7 @@ def test_rate_transfer_session_sections():
 def test_chamber_session_has_no_board_sections():
     p = parse(R.build_report(SESSIONS / "chamber_short.h5"))
     notes = " ".join(p.classes["note"])
-    assert "no ACS board data" in notes
+    assert "no sensor data" in notes
     assert "Rates: not applicable: no gyro output" in notes
     assert len(p.imgs) == 1  # temperature and pressure only
 

@@ -27,7 +27,7 @@ def _load(tmp_path: Path, safe: str, limits: str = "") -> float:
     """Load the config; the chamber's safe set point it gives (degC)."""
     path = tmp_path / "lab.yaml"
     path.write_text(CONFIG.format(safe=safe, limits=limits))
-    return load_config(path).instruments["tvac"].safe_set_point_c
+    return load_config(path).instruments["tvac"].settings.safe_set_point_c
 
 
 @pytest.mark.parametrize("safe", ["500 degC", "-60 degC"])
@@ -65,4 +65,4 @@ def test_without_a_safe_set_point_the_chamber_goes_to_the_room(tmp_path: Path) -
     path = tmp_path / "lab.yaml"
     path.write_text("".join(line for line in CONFIG.format(safe="", limits="").splitlines(keepends=True)
                             if "safe_set_point" not in line))
-    assert load_config(path).instruments["tvac"].safe_set_point_c == 20.0
+    assert load_config(path).instruments["tvac"].settings.safe_set_point_c == 20.0

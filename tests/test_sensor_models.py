@@ -75,7 +75,7 @@ def test_acs_board_simple_still_valid_for_the_lab_config():
     from bench.config import load_config
 
     config = load_config(ROOT / "configs" / "sim.yaml")
-    assert config.instruments["acs_board"].sim.model.gyro_bias_poly_degc == [-1.150e-1, -7.561e-3, -1.124e-4]
+    assert config.instruments["acs_board"].sim.settings.model.gyro_bias_poly_degc == [-1.150e-1, -7.561e-3, -1.124e-4]
 
 
 # ---- NPSAT1 published coefficients ---------------------------------------------------------------

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from bench.record import read_run_summary
-from tests.browser import ROOT, TOKEN, Server, chromium_path, launch_browser, make_run_file
+from tests.browser import ROOT, TOKEN, Server, chromium_path, launch_browser, make_run_file, until
 
 PROCEDURES = ROOT / "tests" / "data" / "procedures"
 SIM_CONFIG = ROOT / "configs" / "sim.yaml"
@@ -72,17 +72,6 @@ def _page(browser, url: str):
     return page
 
 
-def _until(page, cond, what: str, timeout_s: float = 30.0):
-    """Poll ``cond()`` from Python until true (the page's CSP forbids evaluating strings in it)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = cond()
-        if v:
-            return v
-        page.wait_for_timeout(100)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-
-
 def _num(page, selector: str, attr: str) -> int:
     v = page.get_attribute(selector, attr)
     return int(v) if v else 0
@@ -103,31 +92,31 @@ def test_dry_run_from_the_page_is_watched_answered_and_stopped(browser, station)
     page.fill("#s-unit", "SN-WEB-1")
     page.fill("#s-operator", "ana")  # issue 30: the person is named, never the server's login
     page.click("#s-plan")
-    _until(page, lambda: "long recording" in page.inner_text("#s-plan-text"), "the plan")
+    until(page, lambda: "long recording" in page.inner_text("#s-plan-text"), "the plan")
     page.click("#s-start")
     page.click("a.started-run")
     page.wait_for_selector("#prompt .question", timeout=30_000)
     assert "Unit mounted" in page.inner_text("#prompt .question")
     # while the prompt waits, the polled thermocouples go on: their plot grows over two updates
     tc = "canvas[data-key='thermocouples/monitor'][data-column=ch101]"
-    rows0 = _until(page, lambda: _num(page, tc, "data-rows"), "thermocouple rows")
-    rows1 = _until(page, lambda: _num(page, tc, "data-rows") > rows0 and _num(page, tc, "data-rows"), "a plot update")
-    _until(page, lambda: _num(page, tc, "data-rows") > rows1, "a second plot update")
+    rows0 = until(page, lambda: _num(page, tc, "data-rows"), "thermocouple rows")
+    rows1 = until(page, lambda: _num(page, tc, "data-rows") > rows0 and _num(page, tc, "data-rows"), "a plot update")
+    until(page, lambda: _num(page, tc, "data-rows") > rows1, "a second plot update")
     assert page.locator("#interlocks-table").inner_text().count("ok") >= 1
     limits = page.locator("#limits-table").inner_text()
     assert "acs_board odr" in limits and "1 .. 1000 Hz" in limits and "checked" in limits, limits
     page.click("#answer-yes")
     page.wait_for_selector("#prompt", state="detached")
-    _until(page, lambda: "long recording" in page.inner_text("#live-state"), "the long recording")
+    until(page, lambda: "long recording" in page.inner_text("#live-state"), "the long recording")
     gyro = "canvas[data-key=acs_board][data-column=gyro]"
     g0 = _num(page, gyro, "data-rows")
-    g1 = _until(page, lambda: _num(page, gyro, "data-rows") > g0 and _num(page, gyro, "data-rows"), "gyro rows")
-    _until(page, lambda: _num(page, gyro, "data-rows") > g1, "more gyro rows")
+    g1 = until(page, lambda: _num(page, gyro, "data-rows") > g0 and _num(page, gyro, "data-rows"), "gyro rows")
+    until(page, lambda: _num(page, gyro, "data-rows") > g1, "more gyro rows")
     assert int(page.get_attribute(gyro, "data-points")) > 0
     page.click("#stop-btn")
     page.click("#stop-confirm-box-ok")  # issue 30: a stop is confirmed on the page
     page.wait_for_selector("#verdict-word", state="attached")
-    _until(page, lambda: "aborted" in page.inner_text("#run-status"), "status aborted")
+    until(page, lambda: "aborted" in page.inner_text("#run-status"), "status aborted")
     page.close()
 
     path = next(station.runs_dir.glob("*web_prompt*.h5"))
@@ -206,16 +195,16 @@ def test_runs_table_filters(browser, tmp_path):
         assert page.locator("tr.run-row").count() == 3
         page.fill("#f-unit", "SN1")
         page.click("#f-apply")
-        _until(page, lambda: page.locator("tr.run-row").count() == 2, "2 rows")
+        until(page, lambda: page.locator("tr.run-row").count() == 2, "2 rows")
         assert {r.get_attribute("data-unit") for r in page.locator("tr.run-row").all()} == {"SN1"}
         page.fill("#f-unit", "")
         page.select_option("#f-status", "aborted")
         page.click("#f-apply")
-        _until(page, lambda: page.locator("tr.run-row").count() == 1, "1 row")
+        until(page, lambda: page.locator("tr.run-row").count() == 1, "1 row")
         assert page.locator("tr.run-row").get_attribute("data-unit") == "SN2"
         page.fill("#f-since", "yesterday")
         page.click("#f-apply")
-        _until(page, lambda: "since" in page.inner_text("#runs-errors"), "the located error")
+        until(page, lambda: "since" in page.inner_text("#runs-errors"), "the located error")
         page.goto(server.url + "?procedure=table_b&verdict=incomplete")
         page.wait_for_selector("#runs-table")
         assert page.locator("tr.run-row").count() == 1
@@ -262,7 +251,7 @@ def test_run_page_of_a_crashed_file(browser, tmp_path):
         assert page.inner_text("#run-status") == "crashed"
         assert page.inner_text("#verdict-word") == "INCOMPLETE"
         gyro = "canvas[data-key=board][data-column=gyro]"
-        _until(page, lambda: _num(page, gyro, "data-updates") >= 1, "the plot")
+        until(page, lambda: _num(page, gyro, "data-updates") >= 1, "the plot")
         assert page.get_attribute(gyro, "data-rows") == "500"
         assert page.locator("#live-panel").count() == 0  # nobody writes it: no live view, no controls
         page.close()
@@ -281,7 +270,7 @@ def test_a_million_point_stream_renders_from_a_few_thousand_points(browser, tmp_
         page.wait_for_selector("tr.run-row a")
         page.click("tr.run-row a")
         gyro = "canvas[data-key=board][data-column=gyro]"
-        _until(page, lambda: _num(page, gyro, "data-updates") >= 1, "the plot")
+        until(page, lambda: _num(page, gyro, "data-updates") >= 1, "the plot")
         assert page.get_attribute(gyro, "data-rows") == "1000000"
         bodies = [r.json() for r in payloads if "column=gyro" in r.url]
         assert bodies and all(b["points"] <= 4000 and len(b["t"]) == b["points"] for b in bodies)
@@ -291,7 +280,7 @@ def test_a_million_point_stream_renders_from_a_few_thousand_points(browser, tmp_
         payloads.clear()
         page.hover(gyro)
         page.mouse.wheel(0, -500)
-        _until(page, lambda: _num(page, gyro, "data-updates") >= 2, "the zoomed plot")
+        until(page, lambda: _num(page, gyro, "data-updates") >= 2, "the zoomed plot")
         zoomed = [r.json() for r in payloads if "column=gyro" in r.url]
         assert zoomed and zoomed[-1]["rows_in_range"] < 1_000_000 and zoomed[-1]["points"] <= 4000
         page.close()

@@ -21,8 +21,7 @@ import h5py
 import pytest
 
 from bench.record import read_run_summary
-from tests.browser import ROOT, TOKEN, Server, launch_browser
-from tests.test_web_station import _until
+from tests.browser import ROOT, TOKEN, Server, launch_browser, until
 
 PROCEDURES = ROOT / "tests" / "data" / "procedures"
 SIM_CONFIG = ROOT / "configs" / "sim.yaml"
@@ -83,7 +82,7 @@ def test_runs_list_tells_dry_runs_apart_and_fits_1024(browser, station):
     assert _fits(page, "#runs-table"), "the runs table overflows at 1024 px"
     page.select_option("#f-mode", "dry-run")
     page.click("#f-apply")
-    _until(page, lambda: page.locator("tr.run-row").count() == 3, "the dry-runs only")
+    until(page, lambda: page.locator("tr.run-row").count() == 3, "the dry-runs only")
     assert "mode=dry-run" in page.url
     assert not page.errors
     page.close()
@@ -102,7 +101,7 @@ def test_a_units_page_shows_its_history_and_its_lot(browser, station):
     assert page.locator(".figure[data-name='gyro z scale-factor error']").get_attribute("data-outlier") == "0"
     assert page.get_attribute("#unit-package", "href") == "/api/unit_package?serial=SN12"  # its content: test_station_ii.py
     page.set_viewport_size(NARROW)
-    _until(page, lambda: _fits(page, "#figures"), "the figures at 1024 px")
+    until(page, lambda: _fits(page, "#figures"), "the figures at 1024 px")
     assert not page.errors
     page.close()
 
@@ -137,7 +136,7 @@ def test_live_run_operator_prompt_pause_stop_units_and_plots(browser, station):
     page.uncheck("#s-realtime")  # virtual time: the recordings take no wall time; the prompt and a pause hold it
     page.fill("[data-name=hold]", "20 h")  # still recording when stopped, however loaded the machine
     page.click("#s-start")
-    _until(page, lambda: "operator" in page.inner_text("#s-errors"), "the operator is required")
+    until(page, lambda: "operator" in page.inner_text("#s-errors"), "the operator is required")
     page.fill("#s-operator", "alice")
     page.fill("#s-unit", "SN-LIVE")
     page.click("#s-start")
@@ -148,7 +147,7 @@ def test_live_run_operator_prompt_pause_stop_units_and_plots(browser, station):
     # a typo is refused at the prompt itself, and the box is cleared
     page.fill("#answer-text", "yse")
     page.click("#answer-send")
-    _until(page, lambda: "not an accepted answer" in page.inner_text("#prompt-error"), "the refusal at the prompt")
+    until(page, lambda: "not an accepted answer" in page.inner_text("#prompt-error"), "the refusal at the prompt")
     assert page.input_value("#answer-text") == ""
     # "No" asks first; going back leaves the question waiting
     page.click("#answer-no")
@@ -163,10 +162,10 @@ def test_live_run_operator_prompt_pause_stop_units_and_plots(browser, station):
     assert re.search(r"rate_table angle \S+ deg, rate 5 deg/s", page.inner_text("#readings"))
     page.click("#answer-yes")
     page.wait_for_selector("#prompt", state="detached")
-    _until(page, lambda: "long recording" in page.inner_text("#live-state"), "the long recording")
+    until(page, lambda: "long recording" in page.inner_text("#live-state"), "the long recording")
     # pause: it looks paused, and virtual time stands still
     page.click("#pause-btn")
-    _until(page, lambda: "paused" in page.inner_text("#run-status"), "the paused badge")
+    until(page, lambda: "paused" in page.inner_text("#run-status"), "the paused badge")
     assert page.inner_text("#live-word") == "PAUSED" and page.inner_text("#pause-btn") == "Resume"
     page.wait_for_timeout(1300)  # the file's run time is at most one flush (1 s of wall time) behind the runner
     t0 = page.inner_text("#live-run-time")
@@ -177,17 +176,17 @@ def test_live_run_operator_prompt_pause_stop_units_and_plots(browser, station):
     page.screenshot(path=str(station.runs_dir.parent / "web-paused-1024.png"))
     page.set_viewport_size(WIDE)
     page.click("#pause-btn")
-    _until(page, lambda: page.inner_text("#live-run-time") != t0, "the run going on again")
-    _until(page, lambda: page.locator("canvas[data-time-axis=hms]").count() > 0, "an h:mm:ss time axis past 10 minutes")
+    until(page, lambda: page.inner_text("#live-run-time") != t0, "the run going on again")
+    until(page, lambda: page.locator("canvas[data-time-axis=hms]").count() > 0, "an h:mm:ss time axis past 10 minutes")
     # the plots: one per unit of a stream, gaps left open, status words apart, following the window
     tc = page.locator("canvas[data-key='thermocouples/monitor']")
     assert tc.count() == 1 and tc.get_attribute("data-columns") == "ch101,ch102,ch103,ch104"
     gyro = "canvas[data-key=acs_board][data-column=gyro]"
-    _until(page, lambda: int(page.get_attribute(gyro, "data-gaps") or 0) >= 1, "the gap between the board's windows")
+    until(page, lambda: int(page.get_attribute(gyro, "data-gaps") or 0) >= 1, "the gap between the board's windows")
     assert page.locator("canvas[data-key='rate_table/monitor'][data-column=statusword]").get_attribute("data-status") == "1"
     wide = int(page.get_attribute(gyro, "data-width"))
     page.set_viewport_size(NARROW)
-    _until(page, lambda: int(page.get_attribute(gyro, "data-width")) < wide - 300, "the plots to follow the window")
+    until(page, lambda: int(page.get_attribute(gyro, "data-width")) < wide - 300, "the plots to follow the window")
     page.set_viewport_size(WIDE)
     # stop: asked first; "keep running" keeps it running
     page.click("#stop-btn")
@@ -197,9 +196,9 @@ def test_live_run_operator_prompt_pause_stop_units_and_plots(browser, station):
     assert "aborted" not in page.inner_text("#run-status") and page.is_visible("#stop-btn")
     page.click("#stop-btn")
     page.click("#stop-confirm-box-ok")
-    _until(page, lambda: "aborted" in page.inner_text("#run-status"), "the stop")
+    until(page, lambda: "aborted" in page.inner_text("#run-status"), "the stop")
     assert page.is_hidden("#controls")
-    _until(page, lambda: page.inner_text("#ended") not in ("", "—"), "the end time, without a reload")
+    until(page, lambda: page.inner_text("#ended") not in ("", "—"), "the end time, without a reload")
     size = page.inner_text("#file-size")
     assert size.endswith("MB") or size.endswith("kB")
     assert not page.errors
@@ -239,7 +238,7 @@ def test_a_terminal_run_waiting_at_a_prompt_is_listed_as_waiting(browser, statio
             page.wait_for_selector("#runs-count")
             return False
 
-        _until(page, waiting, "the waiting terminal run", timeout_s=45)
+        until(page, waiting, "the waiting terminal run", timeout_s=45)
         row = page.inner_text("tr.run-row")
         assert "0:01:30" in row and "Close the door" in row, row
         page.close()

@@ -9,7 +9,7 @@ loaded by :func:`load_dataset` from either
   extra columns are ignored; a CSV whose columns have other names is read through a mapping
   (``--map``, ``bench/analysis/foreign.py``);
   or
-* a bench run file (``.h5``): the ACS board stream gives time, gyro, accelerometer and temperature;
+* a bench run file (``.h5``): the sensor stream (by kind and role, whatever the board is called) gives time, gyro, accelerometer and temperature;
   the rate-table, chamber and thermocouple monitors are interpolated onto the board's sample times;
   or
 * another program's HDF5/netCDF-4 file with a column mapping (``--map``; ``bench/analysis/foreign.py``).
@@ -264,7 +264,13 @@ _MOUNT_PROMPT = re.compile(r"Mount the unit with its ([+-]?[xyz]) axis along the
 
 
 def dataset_from_run(path: str | Path) -> Dataset:
-    """The ACS board stream of a run file with the other instruments' monitors interpolated onto it.
+    """The unit's sensor stream of a run file with the other instruments' monitors interpolated onto it.
+
+    Streams are found by kind and role (bench/record/by_kind.py), whatever the instruments are
+    called: the sensor stream is the data stream of an instrument whose kind streams a gyro (the
+    first, said in the notes when there are several); the reference rate and angle are the
+    turntable's (roles ``table_rate``, ``table_angle``), the chamber's air temperature and pressure
+    roles ``air_temp``, ``pressure``.
 
     Columns: ``time_s`` (run time), ``gyro_*_dps``, ``accel_*_g``, ``temp_c`` (the board's first
     temperature channel, the gyro's), ``power_on_s`` (since the first board sample), and when
@@ -276,7 +282,8 @@ def dataset_from_run(path: str | Path) -> Dataset:
     and so are the board rows inside a gap a damaged monitor chunk leaves; each is said in
     :attr:`Dataset.notes`.
     """
-    from bench.record.layout import IMPORTED_STREAM, monitor_key
+    from bench.record import by_kind
+    from bench.record.layout import IMPORTED_STREAM
     from bench.record.reader import read_run_summary, read_stream_checked
     from bench.model.geometry import mount_matrix
 
@@ -290,25 +297,38 @@ def dataset_from_run(path: str | Path) -> Dataset:
         ds = _dataset_from_import(p, summary, imported.data)
         ds.notes = notes + [e.describe() for e in imported.excluded]
         return ds
-    if "acs_board" not in streams:
-        raise InputError(f"{p}: no ACS board stream in this run (streams: {', '.join(sorted(streams)) or 'none'}); "
-                         "the analysis needs the sensor outputs")
-    read = read_stream_checked(p, "acs_board", ("gyro", "accel", "temp"))
+    sensors = [c for c in by_kind.role_columns(summary, "gyro") if not c.monitor]
+    if not sensors:
+        raise InputError(f"{p}: no sensor stream in this run (no data stream of a kind that streams a gyro; streams: "
+                         f"{', '.join(sorted(streams)) or 'none'}); the analysis needs the sensor outputs")
+    gyro_col = sensors[0]
+    bkey = gyro_col.key
+    if len(sensors) > 1:
+        notes.append(f"{len(sensors)} sensor streams in this run ({', '.join(c.key for c in sensors)}): analysed {bkey}")
+    cols_of = {c.signal.role: c.column for c in by_kind.role_columns(summary, ("accel", "sensor_temp")) if c.key == bkey}
+    accel_name, temp_name = cols_of.get("accel", "accel"), cols_of.get("sensor_temp", "temp")
+    read = read_stream_checked(p, bkey, (gyro_col.column, accel_name, temp_name))
     board = read.data
     notes += [e.describe() for e in read.excluded]
-    t = _column(p, board, "acs_board", "time")
+    t = _column(p, board, bkey, "time")
     # keep the rows whose time is finite and later than every row kept before it (a repeated or
     # backward time, or NaN from a damaged file, would break "time_s strictly increasing")
     finite = np.isfinite(t)
     latest = np.maximum.accumulate(np.where(finite, t, -np.inf))
     keep = finite & (t > np.concatenate([[-np.inf], latest[:-1]]))
     if not keep.all():
-        notes.append(f"left out {int(np.count_nonzero(~keep)):,} rows of stream acs_board whose run time is not finite "
+        notes.append(f"left out {int(np.count_nonzero(~keep)):,} rows of stream {bkey} whose run time is not finite "
                      "or does not increase")
-    table_monitor, chamber_monitor = monitor_key("rate_table"), monitor_key("tvac")
-    monitors = {key: _read_monitor(p, key, cols, notes) for key, cols in ((table_monitor, ("rate", "angle")),
-                                                                         (chamber_monitor, ("air_temp", "pressure")))
-                if key in streams and t.size}
+    rate_col, angle_col = by_kind.first(summary, "table_rate"), by_kind.first(summary, "table_angle")
+    air_col, pressure_col = by_kind.first(summary, "air_temp"), by_kind.first(summary, "pressure")
+    table_monitor = rate_col.key if rate_col is not None else None
+    chamber_monitor = air_col.key if air_col is not None else None
+    wanted = {}
+    if table_monitor is not None:
+        wanted[table_monitor] = tuple(c.column for c in (rate_col, angle_col) if c is not None and c.key == table_monitor)
+    if chamber_monitor is not None:
+        wanted[chamber_monitor] = tuple(c.column for c in (air_col, pressure_col) if c is not None and c.key == chamber_monitor)
+    monitors = {key: _read_monitor(p, key, cols, notes) for key, cols in wanted.items() if t.size}
     for key, (_mon, gaps) in monitors.items():
         for e in gaps:  # the monitor's values would be interpolated across the gap: leave those board rows out
             lo = -np.inf if e.t_before_s is None else e.t_before_s
@@ -316,25 +336,25 @@ def dataset_from_run(path: str | Path) -> Dataset:
             inside = (t > lo) & (t < hi) & keep
             if inside.any():
                 keep &= ~inside
-                notes.append(f"left out {int(np.count_nonzero(inside)):,} rows of stream acs_board "
+                notes.append(f"left out {int(np.count_nonzero(inside)):,} rows of stream {bkey} "
                              f"(t {float(t[inside][0]):.2f}–{float(t[inside][-1]):.2f} s) inside that gap of stream {key}")
     if keep.all():
         keep = slice(None)  # views, not copies, of a clean recording's columns
     t = t[keep]
     cols: dict[str, np.ndarray] = {"time_s": t}
-    gyro = _column(p, board, "acs_board", "gyro", 3)[keep]
-    accel = _column(p, board, "acs_board", "accel", 3)[keep]
+    gyro = _column(p, board, bkey, gyro_col.column, 3)[keep]
+    accel = _column(p, board, bkey, accel_name, 3)[keep]
     for k, a in enumerate(AXES):
         cols[GYRO[a]] = gyro[:, k]
         cols[ACCEL[a]] = accel[:, k]
-    temp = _column(p, board, "acs_board", "temp", None if np.ndim(board.get("temp")) == 1 else 1)[keep]
+    temp = _column(p, board, bkey, temp_name, None if np.ndim(board.get(temp_name)) == 1 else 1)[keep]
     cols["temp_c"] = temp if temp.ndim == 1 else temp[:, 0]  # the gyro's: the first temperature a board sends
     cols["power_on_s"] = t - (t[0] if t.size else 0.0)
 
     if table_monitor in monitors:
         mon = monitors[table_monitor][0]
         tm = _column(p, mon, table_monitor, "time")
-        rate = _interp(t, tm, _column(p, mon, table_monitor, "rate"))
+        rate = _interp(t, tm, _column(p, mon, table_monitor, rate_col.column))
         ups = [(e.t_s, m.group(1)) for e in summary.events if (m := _MOUNT_PROMPT.search(e.message))]
         ref = np.zeros((t.size, 3))
         for i, (t0, up) in enumerate(ups or [(-math.inf, "z")]):
@@ -343,15 +363,17 @@ def dataset_from_run(path: str | Path) -> Dataset:
             ref[sel] = np.outer(rate[sel], mount_matrix(up)[:, 2])
         for k, a in enumerate(AXES):
             cols[REF_RATE[a]] = ref[:, k]
-        # unwrapped before interpolating: a sample between 359.9 and 0.1 deg is near 0, not 180
-        angle = np.degrees(np.unwrap(np.radians(_column(p, mon, table_monitor, "angle"))))
-        cols["table_angle_deg"] = _interp(t, tm, angle) % 360.0
+        if angle_col is not None and angle_col.key == table_monitor:
+            # unwrapped before interpolating: a sample between 359.9 and 0.1 deg is near 0, not 180
+            angle = np.degrees(np.unwrap(np.radians(_column(p, mon, table_monitor, angle_col.column))))
+            cols["table_angle_deg"] = _interp(t, tm, angle) % 360.0
     if chamber_monitor in monitors:
         mon = monitors[chamber_monitor][0]
         tm = _column(p, mon, chamber_monitor, "time")
-        cols["chamber_temp_c"] = _interp(t, tm, _column(p, mon, chamber_monitor, "air_temp"))
-        pressure = np.clip(_column(p, mon, chamber_monitor, "pressure"), 1e-12, None)
-        cols["pressure_torr"] = np.exp(_interp(t, tm, np.log(pressure)))
+        cols["chamber_temp_c"] = _interp(t, tm, _column(p, mon, chamber_monitor, air_col.column))
+        if pressure_col is not None and pressure_col.key == chamber_monitor:
+            pressure = np.clip(_column(p, mon, chamber_monitor, pressure_col.column), 1e-12, None)
+            cols["pressure_torr"] = np.exp(_interp(t, tm, np.log(pressure)))
     meta: dict[str, float | str] = {k: v for k, v in summary.attrs.items() if isinstance(v, str)}
     lat = _latitude_from_config(summary.config_text)
     if lat is not None:

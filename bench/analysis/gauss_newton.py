@@ -471,26 +471,27 @@ def tilt_per_row(ds: Any, opts: dict[str, Any], where: Location) -> tuple[np.nda
         return np.full(n, _num(ds.meta["tilt_deg"], "tilt_deg", where)), ""
     tilt = _tilt_from_run(ds)
     if tilt is not None:
-        return tilt, "tilt taken from the run file's rate_table/monitor stream"
+        return tilt, "tilt taken from the run file's rate table (its monitor's table_tilt)"
     raise InputError("the accelerometer calibration needs the table tilt: give tilt_deg (option, column or "
-                     "metadata) or a run file with a rate_table/monitor stream", where, "tilt_deg")
+                     "metadata) or a run file with a rate table's monitor (a table_tilt reading)", where, "tilt_deg")
 
 
 def _tilt_from_run(ds: Any) -> np.ndarray | None:
-    """The rate-table monitor's tilt interpolated onto the dataset's times, when ``ds`` came from a
-    run file (``load_dataset`` does not expose it yet); None otherwise."""
+    """The rate table's tilt (the column with role ``table_tilt``) interpolated onto the dataset's
+    times, when ``ds`` came from a run file (``load_dataset`` does not expose it yet); None otherwise."""
     from pathlib import Path
 
     src = Path(getattr(ds, "source", "") or "")
     if src.suffix.lower() not in (".h5", ".hdf5") or not src.is_file():
         return None
     try:
-        from bench.record.layout import monitor_key
-        from bench.record.reader import read_stream
+        from bench.record import by_kind
+        from bench.record.reader import read_run_summary, read_stream
 
-        mon = read_stream(src, monitor_key("rate_table"))
+        col = by_kind.first(read_run_summary(src, event_kinds=()), "table_tilt")
+        mon = read_stream(src, col.key)
         tm = np.asarray(mon["time"], dtype=float)
-        tilt = np.asarray(mon["tilt"], dtype=float)
+        tilt = np.asarray(mon[col.column], dtype=float)
     except Exception:  # noqa: BLE001 - no monitor or no tilt field: the tilt is simply unknown
         return None
     if tm.size == 0:

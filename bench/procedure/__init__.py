@@ -1,6 +1,6 @@
 """Procedures as data: schema, loading with located errors, expansion of blocks, limits, duration estimate."""
 
 from bench.procedure.loader import Interlock, Procedure, Step, load_procedure, parse_procedure
-from bench.procedure.schema import BLOCK_TYPES, SCHEMA_ID, STEP_TYPES
+from bench.procedure.schema import BLOCK_TYPES, SCHEMA_ID, step_types
 
-__all__ = ["Interlock", "Procedure", "Step", "load_procedure", "parse_procedure", "SCHEMA_ID", "STEP_TYPES", "BLOCK_TYPES"]
+__all__ = ["Interlock", "Procedure", "Step", "load_procedure", "parse_procedure", "SCHEMA_ID", "step_types", "BLOCK_TYPES"]

@@ -33,9 +33,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable
 
-from bench.model.chamber import ATMOSPHERE_TORR, ChamberParams, pump_down_time_s, vent_time_s
-from bench.model.rate_table import TableParams, move_time_s
-from bench.procedure.signals import DEFAULT_KINDS, parse_signal
+from bench.kinds import registry
+from bench.model.chamber import ATMOSPHERE_TORR, ChamberParams
+from bench.model.rate_table import TableParams
+from bench.procedure.schema import kind_step
+from bench.procedure.signals import default_kinds, parse_signal, role_of
 
 if TYPE_CHECKING:  # pragma: no cover
     from bench.procedure.loader import Procedure, Step
@@ -92,7 +94,7 @@ class Estimate:
         return out
 
 
-class _Chamber:
+class ChamberState:
     """The chamber's air as the estimate follows it: approaching ``target_c`` from side ``sign``
     at ``speed`` (°C/s) until ``t_tail`` (s), where it is ``tail_c`` away, then exponentially with
     ``tau_air_s``; the unit follows the air with the time constant of the current pressure."""
@@ -154,36 +156,47 @@ class _Chamber:
         return (t0 - t) + settle + hold_s
 
 
-class _Table:
-    """One rate table as the estimate follows it: rate (deg/s), angle (deg, None once turned at a
-    rate), tilt (deg), and the profile velocity and acceleration in force on each axis."""
+class EstimateContext:
+    """What a step's estimate (``StepDef.estimate``) works with: the run time ``t`` (s) the step
+    starts at, the ``lab`` model, the instruments' ``kinds``, the chamber and unit temperatures
+    (:meth:`chamber`) and any state a kind keeps per instrument between steps (:meth:`state`: a
+    table's rate and angle)."""
 
-    def __init__(self, p: TableParams):
-        self.rate = 0.0
-        self.angle: float | None = 0.0
-        self.tilt = 0.0
-        self.velocity = {"rotation": p.profile_velocity_dps, "tilt": p.profile_velocity_dps}
-        self.accel = {"rotation": p.profile_accel_dps2, "tilt": p.profile_accel_dps2}
+    def __init__(self, lab: LabModel, kinds: dict[str, str]):
+        self.lab = lab
+        self.kinds = kinds
+        self.t = 0.0
+        self._chambers: dict[str, ChamberState] = {}
+        self._states: dict[str, object] = {}
+
+    def chamber(self, name: str | None = None) -> ChamberState:
+        """The temperatures of the unit's environment as driven by chamber ``name`` (default: the
+        lab's one environment: the first instrument whose kind has an ``envelope`` on air temperature,
+        else a room at the ambient temperature)."""
+        if name is None:
+            name = next((n for n, k in self.kinds.items() if _is_chamber(k)), "")
+        return self._chambers.setdefault(name, ChamberState(self.lab.chamber, self.lab.ambient_c))
+
+    def state(self, key: str, make):  # noqa: ANN001, ANN201 - any per-instrument state a kind keeps
+        """The state ``key`` (made by ``make()`` the first time)."""
+        if key not in self._states:
+            self._states[key] = make()
+        return self._states[key]
+
+
+def _is_chamber(kind: str) -> bool:
+    k = registry.get(kind)
+    return k is not None and any(s.role == "air_temp" for s in k.signals)
 
 
 def estimate_procedure(steps: Iterable["Step"], lab: LabModel | None = None) -> Estimate:
     """The :class:`Estimate` of ``steps`` (a procedure's expanded steps) on the lab ``lab``
     (default: the model's own defaults and the standard instrument names)."""
     lab = lab or LabModel()
-    kinds = lab.kinds if lab.kinds is not None else DEFAULT_KINDS
-    chambers: dict[str, _Chamber] = {}
-    tables: dict[str, _Table] = {}
-
-    def chamber(name: str | None = None) -> _Chamber:
-        name = name or next((n for n, k in kinds.items() if k == "tvac"), "tvac")
-        return chambers.setdefault(name, _Chamber(lab.chamber, lab.ambient_c))
-
-    def table(name: str) -> _Table:
-        return tables.setdefault(name, _Table(lab.table))
-
+    kinds = lab.kinds if lab.kinds is not None else default_kinds()
+    ctx = EstimateContext(lab, kinds)
     out: list[StepEstimate] = []
     prompts = 0
-    t = 0.0
     for s in steps:
         p = s.params
         e = StepEstimate(0.0)
@@ -192,35 +205,18 @@ def estimate_procedure(steps: Iterable["Step"], lab: LabModel | None = None) -> 
         elif s.type in PROMPT_TYPES:
             prompts += 1
             e = StepEstimate(0.0, basis="operator prompt, not counted")
-        elif s.type == "power":
-            chamber().power_changed_at = t
-        elif s.type == "set_temperature":
-            c = chamber(p["instrument"])
-            c.set_point(t, float(p["set_point"]), float(p.get("ramp") or 0.0))
-            if p.get("wait"):
-                e = _capped(c.reach_s(t, float(p.get("band", 1.0))), p, "chamber ramp and approach (chamber model)")
         elif s.type == "wait_until_stable":
-            e = _stable(s, t, kinds, chamber)
-        elif s.type == "pump_down":
-            c = chamber(p["instrument"])
-            e = _capped(pump_down_time_s(c.p, float(p["pressure"]), c.pressure_torr), p, "pump-down law (chamber model)")
-            c.pressure_torr = min(c.pressure_torr, float(p["pressure"]))
-        elif s.type == "vent":
-            c = chamber(p["instrument"])
-            e = _capped(vent_time_s(c.p, float(p.get("pressure", 700.0)), c.pressure_torr), p, "vent law (chamber model)")
-            c.pressure_torr = max(c.pressure_torr, float(p.get("pressure", 700.0)))
-        elif s.type in ("table_rate", "table_stop", "table_move", "table_tilt"):
-            e = _table_step(s, table(p["instrument"]))
-        elif s.type == "bench_rate":
-            e = StepEstimate(float(p.get("settle", 0.0)), basis="settle")
+            e = _stable(s, ctx)
         elif s.type == "vibrate":
             e = StepEstimate(_vibration_s(p.get("profile")), basis="vibration profile duration")
+        elif (found := kind_step(s.type)) is not None and found[1].estimate:
+            e = registry.load(found[1].estimate)(s, ctx)
         out.append(e)
-        t += e.duration_s
+        ctx.t += e.duration_s
     return Estimate(out, prompts)
 
 
-def _capped(duration_s: float, p: dict, basis: str) -> StepEstimate:
+def capped(duration_s: float, p: dict, basis: str) -> StepEstimate:
     """A modelled wait, at most its ``timeout`` (the run aborts there)."""
     timeout = float(p.get("timeout", math.inf))
     if duration_s > timeout:
@@ -228,53 +224,21 @@ def _capped(duration_s: float, p: dict, basis: str) -> StepEstimate:
     return StepEstimate(duration_s, basis=basis)
 
 
-_TEMPERATURES = {("tvac", "air_temp"): "air", ("tvac", "mount_temp"): "unit", ("acs_board", "temp"): "die"}
-"""(driver, column) -> which temperature of the chamber model a signal reads; thermocouple channels read the unit."""
+TEMPERATURE_ROLES = {"air_temp": "air", "mount_temp": "unit", "unit_temp": "unit", "sensor_temp": "die"}
+"""Signal role -> which temperature of the chamber model a signal reads."""
 
 
-def _stable(s: "Step", t: float, kinds: dict[str, str], chamber) -> StepEstimate:
+def _stable(s: "Step", ctx: EstimateContext) -> StepEstimate:
     p = s.params
     hold, band = float(p.get("hold", 0.0)), float(p.get("band", 0.0))
     try:
         inst, column, _axis = parse_signal(str(p["signal"]))
     except KeyError:
         inst, column = "", ""
-    kind = kinds.get(inst, "")
-    where = "unit" if kind == "thermocouple_reader" and column.startswith("ch") else _TEMPERATURES.get((kind, column))
+    where = TEMPERATURE_ROLES.get(role_of(column, ctx.kinds.get(inst, "")))
     if where is None:
         return StepEstimate(hold, lower_bound=True, basis=f"no model of {p.get('signal')}: its hold, at least")
-    return _capped(chamber().stable_s(t, where, band, hold), p, f"chamber and unit settling, then the hold (chamber model, {where})")
-
-
-def _table_step(s: "Step", tb: _Table) -> StepEstimate:
-    p = s.params
-    axis = "tilt" if s.type == "table_tilt" else "rotation"
-    if p.get("accel"):
-        tb.accel[axis] = float(p["accel"])
-    if s.type == "table_move" and p.get("rate"):
-        tb.velocity[axis] = abs(float(p["rate"]))
-    accel = tb.accel[axis]
-    if s.type == "table_rate":
-        rate = float(p["rate"])
-        d = abs(rate - tb.rate) / accel + float(p.get("settle", 0.0))
-        if rate != 0 or tb.rate != 0:
-            tb.angle = None  # turned: the angle is no longer known
-        tb.rate = rate
-        return StepEstimate(d, basis="acceleration to the rate (table model), then settle")
-    if s.type == "table_stop":
-        d, tb.rate = abs(tb.rate) / accel, 0.0
-        return StepEstimate(d, basis="braking (table model)")
-    if s.type == "table_tilt":
-        d = move_time_s(float(p["angle"]) - tb.tilt, tb.velocity[axis], accel)
-        tb.tilt = float(p["angle"])
-        return StepEstimate(d, basis="tilt move (table model)")
-    brake = abs(tb.rate) / accel
-    target = float(p["angle"])
-    known = tb.angle
-    tb.rate, tb.angle = 0.0, target
-    if known is None:
-        return StepEstimate(brake, lower_bound=True, basis="move from an unknown angle: braking, at least")
-    return StepEstimate(brake + move_time_s(target - known, tb.velocity[axis], accel), basis="move (table model)")
+    return capped(ctx.chamber().stable_s(ctx.t, where, band, hold), p, f"chamber and unit settling, then the hold (chamber model, {where})")
 
 
 def _vibration_s(profile: object) -> float:
@@ -297,3 +261,8 @@ def run_file_bytes(procedure: "Procedure") -> int:
     recording_s = sum(e.duration_s for step, e in zip(procedure.steps, est.steps)
                       if step.type == "record" or step.params.get("record"))
     return int(recording_s * 1000 * 20 * 8 + est.total_s * 5 * 10 * 8) + 1_000_000
+
+
+def settle(s: "Step", ctx: EstimateContext) -> StepEstimate:
+    """A step that takes its ``settle`` time (s), e.g. a bench that reaches its rate at once."""
+    return StepEstimate(float(s.params.get("settle", 0.0)), basis="settle")

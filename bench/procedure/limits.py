@@ -12,40 +12,16 @@ import math
 from typing import Any
 
 from bench.errors import InputError
-from bench.units import TEMPERATURE_DIFFERENCE, to_units
+from bench.kinds import registry
+from bench.procedure.schema import kind_step
+from bench.units import to_units
 from bench.yamlsrc import Node
 
-LIMIT_UNITS: dict[str, dict[str, str]] = {
-    "tvac": {"set_point": "degC", "ramp": f"{TEMPERATURE_DIFFERENCE}/min", "pressure": "Torr"},
-    "rate_table": {"rate": "deg/s", "accel": "deg/s**2", "tilt": "deg", "angle": "deg"},
-    "stepper_bench": {"rate": "deg/s"},
-    "acs_board": {"odr": "Hz"},
-}
-"""Driver -> limited quantity -> units."""
 
-SYMMETRIC = {"rate", "accel"}
-"""A single value limits the magnitude: ``rate: 10 deg/s`` means -10..10 deg/s."""
-
-DEFAULT_LIMITS: dict[str, dict[str, tuple[float | None, float | None]]] = {
-    # chamber set point: -40 degC (assumed, below NPSAT1's -29) to +100 degC (bake-out, NPSAT1 IV.D.2)
-    "tvac": {"set_point": (-40.0, 100.0)},
-    # rate table: bench.sim.table_motion defaults [U] (docs/rate-table.md)
-    "rate_table": {"rate": (-60.0, 60.0), "accel": (0.0, 60.0), "tilt": (-120.0, 120.0)},
-    # stepper bench: "limited the speed to maximum of about 3.5 deg/s" (ESTCube-2 section 5)
-    "stepper_bench": {"rate": (-3.5, 3.5)},
-    "acs_board": {"odr": (1.0, 1000.0)},
-}
-
-STEP_LIMITS: dict[str, list[tuple[str, str, str]]] = {
-    "set_temperature": [("set_point", "tvac", "set_point"), ("ramp", "tvac", "ramp")],
-    "pump_down": [("pressure", "tvac", "pressure")],
-    "table_rate": [("rate", "rate_table", "rate"), ("accel", "rate_table", "accel")],
-    "table_move": [("rate", "rate_table", "rate"), ("angle", "rate_table", "angle")],
-    "table_tilt": [("angle", "rate_table", "tilt")],
-    "bench_rate": [("rate", "stepper_bench", "rate")],
-    "configure": [("odr", "acs_board", "odr")],
-}
-"""Step type -> (field, driver, limited quantity)."""
+def limit_units(kind: str) -> dict[str, str]:
+    """Limited quantity -> units of kind ``kind`` (its record's ``limits``; empty for an unknown kind)."""
+    k = registry.get(kind)
+    return {lim.quantity: lim.units for lim in k.limits} if k is not None else {}
 
 
 LIMIT_REL_TOL = 1e-9
@@ -67,8 +43,24 @@ def outside_limits(value: float, lo: float | None, hi: float | None) -> bool:
     return (lo is not None and value < lo and beyond(value, lo)) or (hi is not None and value > hi and beyond(value, hi))
 
 
-def parse_limit(node: Node, units: str, name: str, errors: list[InputError]) -> tuple[float | None, float | None] | None:
-    """``[lo, hi]`` (``null`` for an open end) or, for symmetric quantities, a magnitude."""
+def default_limits(kind: str) -> dict[str, tuple[float | None, float | None]]:
+    """Limited quantity -> the (low, high) the instrument class can take, as its kind declares."""
+    k = registry.get(kind)
+    return {lim.quantity: lim.default for lim in k.limits if lim.default != (None, None)} if k is not None else {}
+
+
+def step_limits(stype: str) -> list[tuple[str, str, str]]:
+    """(field, kind, limited quantity) of each field of step type ``stype`` its kind limits."""
+    found = kind_step(stype)
+    if found is None:
+        return []
+    kind, d = found
+    return [(fname, kind.name, q) for fname, q in d.limits]
+
+
+def parse_limit(node: Node, units: str, name: str, errors: list[InputError], magnitude: str = "") -> tuple[float | None, float | None] | None:
+    """``[lo, hi]`` (``null`` for an open end) or, for a quantity with a ``magnitude`` (``signed``:
+    -v..v, ``positive``: 0..v; ``Limit.magnitude``), a single value."""
     try:
         if isinstance(node.value, list):
             if len(node.value) != 2:
@@ -77,9 +69,9 @@ def parse_limit(node: Node, units: str, name: str, errors: list[InputError]) -> 
             if lo is not None and hi is not None and lo > hi:
                 raise InputError(f"low limit {lo:g} is above high limit {hi:g}", node.location, name)
             return lo, hi
-        if name in SYMMETRIC:
+        if magnitude:
             v = abs(to_units(node.value, units, node.location, name))
-            return (-v, v) if name == "rate" else (0.0, v)
+            return (-v, v) if magnitude == "signed" else (0.0, v)
         raise InputError(f"expected [low, high] for {name} (null for an open end)", node.location, name)
     except InputError as exc:
         errors.append(exc)
@@ -89,10 +81,12 @@ def parse_limit(node: Node, units: str, name: str, errors: list[InputError]) -> 
 def parse_limits_block(node: Node, kind: str, what: str, errors: list[InputError]) -> dict[str, tuple]:
     """A ``{quantity: limit, ...}`` mapping for an instrument with driver ``kind`` (lab config or
     procedure); quantity -> (low, high, location). Problems are appended to ``errors``."""
-    units = LIMIT_UNITS.get(kind)
-    if units is None:
-        errors.append(InputError(f"no limits can be set for {what} (limits exist for: {', '.join(LIMIT_UNITS)})", node.location, "limits"))
+    k = registry.get(kind)
+    if k is None or not k.limits:
+        with_limits = [n for n, kk in registry.kinds().items() if kk.limits]
+        errors.append(InputError(f"no limits can be set for {what} (limits exist for: {', '.join(with_limits)})", node.location, "limits"))
         return {}
+    units = {lim.quantity: lim for lim in k.limits}
     if not isinstance(node.value, dict):
         errors.append(InputError("expected a mapping of quantities to limits", node.location, "limits"))
         return {}
@@ -101,7 +95,7 @@ def parse_limits_block(node: Node, kind: str, what: str, errors: list[InputError
         if q not in units:
             errors.append(InputError(f"unknown limit {q!r} for {what} (expected one of: {', '.join(units)})", node.key_locations[q], q))
             continue
-        lim = parse_limit(qnode, units[q], q, errors)
+        lim = parse_limit(qnode, units[q].units, q, errors, units[q].magnitude)
         if lim is not None:
             out[q] = (*lim, qnode.location)
     return out
@@ -112,7 +106,7 @@ def effective_limits(kind: str, *layers: dict[str, tuple[Any, ...]]) -> dict[str
 
     Returns quantity -> (lo, hi, source) where source names the layer that set the binding bound.
     """
-    out: dict[str, tuple[float | None, float | None, str]] = {q: (lo, hi, f"{kind} default") for q, (lo, hi) in DEFAULT_LIMITS.get(kind, {}).items()}
+    out: dict[str, tuple[float | None, float | None, str]] = {q: (lo, hi, f"{kind} default") for q, (lo, hi) in default_limits(kind).items()}
     for layer_name, layer in zip(("lab config", "procedure"), layers):
         for q, bounds in layer.items():
             lo, hi = bounds[0], bounds[1]
@@ -129,7 +123,7 @@ def check_step_limits(steps, kinds: dict[str, str], config_limits: dict[str, dic
     errors: list[InputError] = []
     cache: dict[str, dict[str, tuple[float | None, float | None, str]]] = {}
     for step in steps:
-        for fname, kind, quantity in STEP_LIMITS.get(step.type, []):
+        for fname, kind, quantity in step_limits(step.type):
             if fname not in step.params:
                 continue
             inst = step.params.get("instrument", "")
@@ -142,7 +136,7 @@ def check_step_limits(steps, kinds: dict[str, str], config_limits: dict[str, dic
                 continue
             lo, hi, src = bounds
             v = float(step.params[fname])
-            units = LIMIT_UNITS[kind][quantity]
+            units = limit_units(kind)[quantity]
             if outside_limits(v, lo, hi):
                 rng = f"{'-inf' if lo is None else f'{lo:g}'}..{'inf' if hi is None else f'{hi:g}'} {units}"
                 errors.append(InputError(f"step {step.path} ({step.type}): {v:g} {units} is outside the {inst} {quantity} limits {rng} ({src})",

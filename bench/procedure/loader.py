@@ -24,8 +24,9 @@ from bench.params import override_problem
 from bench.errors import InputError, InputErrors, Location
 from bench.inputs import PROCEDURE_ROOTS, confined_path
 from bench.procedure.limits import check_step_limits
-from bench.procedure.schema import BLOCK_TYPES, REQUIREMENTS, SCHEMA_ID, STEP_TYPES, FieldSpec
-from bench.procedure.signals import DEFAULT_KINDS, STEP_COMMANDS, StreamSignals, signal_units
+from bench.kinds import registry
+from bench.procedure.schema import BLOCK_TYPES, REQUIREMENTS, SCHEMA_ID, FieldSpec, kind_step, step_types
+from bench.procedure.signals import StreamSignals, default_kinds, signal_units
 from bench.units import TEMPERATURE_DIFFERENCE, to_units
 from bench.yamlsrc import MAX_FLOAT, Fields, Node, Source, load_yaml, parse_yaml
 
@@ -184,7 +185,10 @@ def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None,
            signals: dict[str, StreamSignals]) -> Procedure:
     errors: list[InputError] = []
     doc = _Doc(src, errors)
-    kinds = dict(kinds) if kinds is not None else {n: DEFAULT_KINDS[n] for n in doc.instruments if n in DEFAULT_KINDS}
+    if kinds is None:
+        standard = default_kinds()
+        kinds = {n: standard[n] for n in doc.instruments if n in standard}
+    kinds = dict(kinds)
     for key in overrides:
         if key not in doc.parameters:
             known = ", ".join(doc.parameters) or "none"
@@ -276,6 +280,7 @@ class _Expander:
         self._call_stack: list[Path] = [doc.src.path.resolve()]
         self._too_many = False
         self._sites: list[Location] = []  # the call steps being expanded, outermost first
+        self.step_types = step_types()
         self.called_from: dict[int, str] = {}
         """Step index -> ``(called from FILE:LINE:COL)`` of every call it was expanded through."""
         self.unit_required_at: Location | None = None
@@ -292,16 +297,16 @@ class _Expander:
         where = f"step {path}"
         if not isinstance(node.value, dict) or len(node.value) != 1:
             self.errors.append(InputError(f"{where}: expected a one-key mapping such as '- wait: {{duration: 10 s}}' "
-                                          f"(step types: {', '.join([*STEP_TYPES, *BLOCK_TYPES])})", node.location))
+                                          f"(step types: {', '.join([*self.step_types, *BLOCK_TYPES])})", node.location))
             return
         (stype, body), = node.value.items()
         key_loc = node.key_locations[stype]
         if stype in BLOCK_TYPES:
             getattr(self, f"_block_{stype}")(body, env, doc, path, context, depth, key_loc)
             return
-        spec = STEP_TYPES.get(stype)
+        spec = self.step_types.get(stype)
         if spec is None:
-            self.errors.append(InputError(f"{where}: unknown step type {stype!r} (expected one of: {', '.join([*STEP_TYPES, *BLOCK_TYPES])})", key_loc, stype))
+            self.errors.append(InputError(f"{where}: unknown step type {stype!r} (expected one of: {', '.join([*self.step_types, *BLOCK_TYPES])})", key_loc, stype))
             return
         body = self._subst(body, env)
         if body is None:
@@ -312,7 +317,7 @@ class _Expander:
 
     def action(self, stype: str, body: Node, doc: _Doc, path: str, context: str, key_loc: Location,
                meta: dict[str, Any] | None = None) -> Step | None:
-        spec = STEP_TYPES[stype]
+        spec = self.step_types[stype]
         before = len(self.errors)
         f = Fields(body, f"step {path} ({stype})", self.errors)
         params: dict[str, Any] = {}
@@ -331,7 +336,7 @@ class _Expander:
                 params[fname] = value
         name = f.get("name", str, default=stype)
         f.check_unknown()
-        self._check_board_commands(stype, params, f, key_loc)
+        self._check_needs(stype, params, f, key_loc)
         if len(self.errors) > before:
             return None
         if len(self.steps) >= MAX_STEPS:
@@ -344,19 +349,21 @@ class _Expander:
         self.steps.append(step)
         return step
 
-    def _check_board_commands(self, stype: str, params: dict[str, Any], f: Fields, key_loc: Location) -> None:
-        """A board step whose handler sends a command the board's frame description does not have
-        (``bit`` on a board without RUN_BIT): refused here, before anything moves."""
+    def _check_needs(self, stype: str, params: dict[str, Any], f: Fields, key_loc: Location) -> None:
+        """A kind's step whose handler needs what the instrument cannot do (``bit`` on a board whose
+        frame description has no RUN_BIT): refused here, before anything moves (``StepDef.needs``)."""
         stream = self.signals.get(params.get("instrument", ""))
-        if stream is None:
+        found = kind_step(stype)
+        if stream is None or found is None:
             return
-        needs = [(k, c) for k in ([stype] if stype != "configure" else [p for p in params if p in STEP_COMMANDS])
-                 for c in STEP_COMMANDS.get(k, ()) if c not in stream.commands]
+        needs = [(key, c) for key, commands in found[1].needs if key == "" or key in params
+                 for c in commands if c not in stream.commands]
         for key, command in needs:
-            where = f.key_location(key) if stype == "configure" else key_loc
+            where = f.key_location(key) if key else key_loc
+            what = stype if not key else f"{stype} {key}"
             self.errors.append(InputError(f"board {params['instrument']!r} (frame description {stream.description!r}) has no "
-                                          f"{command} command, which {stype if stype != 'configure' else f'configure {key}'} sends "
-                                          f"(its commands: {', '.join(sorted(stream.commands))})", where, key))
+                                          f"{command} command, which {what} sends "
+                                          f"(its commands: {', '.join(sorted(stream.commands))})", where, key or stype))
 
     # ---- substitution -------------------------------------------------------------------------
     def _subst(self, node: Node, env: dict[str, Node]) -> Node | None:
@@ -476,6 +483,11 @@ class _Expander:
         kind = self.kinds.get(v)
         if spec.instrument_kinds and kind is not None and kind not in spec.instrument_kinds:
             self.errors.append(InputError(f"instrument {v!r} is a {kind}; this step needs a {' or '.join(spec.instrument_kinds)}", node.location, fname))
+            return None
+        if spec.streams and kind is not None and not getattr(registry.get(kind), "streams", False):
+            streaming = [k.name for k in registry.kinds().values() if k.streams]
+            self.errors.append(InputError(f"instrument {v!r} is a {kind}, which does not stream; this needs one that does "
+                                          f"({' or '.join(streaming)})", node.location, fname))
             return None
         return v
 
@@ -637,8 +649,10 @@ class _Expander:
         if "instrument" not in f.map:
             self.errors.append(InputError(f"missing required field in {f.what}", b.location, "instrument"))
         kind = self.kinds.get(inst or "", "")
-        if inst is not None and kind not in ("rate_table", "stepper_bench", ""):
-            self.errors.append(InputError(f"instrument {inst!r} is a {kind}; a rate schedule needs a rate_table or a stepper_bench", f.map["instrument"].location, "instrument"))
+        turning = registry.get(kind).rate_schedule if registry.get(kind) is not None else None
+        if inst is not None and kind and turning is None:
+            turners = [k.name for k in registry.kinds().values() if k.rate_schedule is not None]
+            self.errors.append(InputError(f"instrument {inst!r} is a {kind}; a rate schedule needs a {' or a '.join(turners)}", f.map["instrument"].location, "instrument"))
             inst = None
         board = f.get("record", str, required=True)
         if board is not None and board not in doc.instruments:
@@ -682,8 +696,10 @@ class _Expander:
         sched: list[float] = []
         for r in rates:
             sched += [r, -r] if alternate and r != 0 else [r]
-        turn = "table_rate" if kind != "stepper_bench" else "bench_rate"
-        stop = ("table_stop", {"instrument": inst}) if turn == "table_rate" else ("bench_rate", {"instrument": inst, "rate": 0.0})
+        if turning is None:  # no config: the standard names' kinds; an instrument of unknown kind turns like the first turner
+            turning = next(k.rate_schedule for k in registry.kinds().values() if k.rate_schedule is not None)
+        turn = turning.turn
+        stop = (turning.stop, {"instrument": inst, **dict(turning.stop_fields)})
         loc = key_loc
         k = 0
 
@@ -703,7 +719,7 @@ class _Expander:
         for r in sched:
             dwell = long_dwell[1] if long_dwell is not None and abs(r) < long_dwell[0] else q["dwell"]
             fields: dict[str, Any] = {"instrument": inst, "rate": r, "settle": q["settle"], "name": f"rate {r:+g} deg/s"}
-            if turn == "table_rate" and q["accel"] >= 0:
+            if turning.accel and q["accel"] >= 0:
                 fields["accel"] = q["accel"]
             act(turn, fields)
             act("record", {"instrument": board, "duration": dwell, "window": f"{prefix}{r:+g}", "name": f"record at {r:+g} deg/s"},

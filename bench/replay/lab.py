@@ -19,20 +19,49 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from bench.clock import VirtualClock
-from bench.config import InstrumentConfig, LabConfig
+from bench.config import LabConfig
 from bench.errors import InputError
-from bench.lab import DRIVER_CLASSES, Lab, driver_kwargs, dryrun_transport
-from bench.replay.backends import (AcsBoardReplay, Backend, CanReplayNode, ModbusReplayServer, ModbusRtuReplay, ModbusTcpReplay,
-                                   ReplaySerial)
-from bench.replay.recording import Recording
+from bench.kinds import registry as kinds
+from bench.lab import Lab, describe_lab, driver_kwargs, dryrun_transport, open_drivers
+from bench.replay.backends import Backend, ReplaySerial
+from bench.replay.recording import Exchange, Recording
 from bench.sim import registry
 from bench.sim.factory import SimInstrument, build_devices
 from bench.sim.world import World
-from drivers.can_transport import parse_can_url
 
 _ids = itertools.count()
 
-SUPPORTED = ("acs_board", "stepper_bench", "thermocouple_reader", "tvac", "rate_table")
+
+@dataclass
+class ReplayContext:
+    """What a kind's replay wiring (``Kind.replay``, ``wire(ctx, name, inst) -> url``) works with:
+    the recording ``rec`` and its exchanges per (instrument, link) ``links``, the virtual ``clock``,
+    the recording's ``mode``, whether links are ``inprocess``, the simulators that answer the opening
+    prelude (``prelude``), the replay's registry ``tag``, the ``backends`` made so far and each
+    instrument's driver ``kwargs``; :meth:`serial` makes a backend on a serial link."""
+
+    rec: Recording
+    links: dict[tuple[str, str], list[Exchange]]
+    clock: VirtualClock
+    mode: str
+    inprocess: bool
+    prelude: dict[str, SimInstrument]
+    tag: str
+    on_exhausted: Callable[[str], None]
+    backends: dict[tuple[str, str], Backend] = field(default_factory=dict)
+    registered: list[str] = field(default_factory=list)
+    kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def serial(self, name: str, link: str, sub: str, cls=ReplaySerial, **extra) -> str:
+        """A backend of class ``cls`` answering ``name``'s ``link`` from the recording, registered as a
+        ``sim://`` device (its serial sub-device ``sub`` answers the prelude when there is one)."""
+        reg = f"{self.tag}.{name}" + (f".{sub}" if sub else "")
+        pre = self.prelude[name].serial.get(sub) if name in self.prelude else None
+        b = cls(f"{name} {link}".strip(), self.links.get((name, link), []), self.on_exhausted, self.clock, prelude=pre, **extra)
+        self.backends[(name, link)] = b
+        registry.register(reg, b)
+        self.registered.append(reg)
+        return f"sim://{reg}"
 
 
 @dataclass
@@ -67,108 +96,48 @@ class ReplayLab:
         return {k: b.extra_requests for k, b in self.backends.items() if b.extra_requests}
 
 
-def controller_on_rtu(inst: InstrumentConfig, mode: str) -> bool:
-    """Whether the chamber controller of a recording in ``mode`` (``sim`` | ``hardware``) talked
-    Modbus RTU: the simulator's ``transport: rtu`` in a dry-run, a ``modbus-rtu://`` port on hardware."""
-    if mode == "sim":
-        return inst.sim is not None and inst.sim.transport == "rtu"
-    return inst.port.startswith("modbus-rtu:")
-
-
 def open_replay_lab(config: LabConfig, names: list[str], rec: Recording, mode: str,
                     on_traffic: Callable[[str, str, str, bytes], None] | None, on_exhausted: Callable[[str], None]) -> ReplayLab:
     for name in names:
         if name not in config.instruments:
             raise InputError(f"instrument {name!r} used by the procedure is not in the recorded config (has: {', '.join(config.instruments)})")
-        if config.instruments[name].driver not in SUPPORTED:
-            raise InputError(f"instrument {name!r}: driver {config.instruments[name].driver!r} cannot be replayed")
     clock = VirtualClock()
     drivers = {n: config.instruments[n].driver for n in names}
-    links = rec.links(drivers)
     world = World(config.world)
     transport = dryrun_transport()
-    inprocess = transport == "inprocess"
     prelude: dict[str, SimInstrument] = {}
     if not rec.prelude_recorded:
         try:
             prelude = build_devices(config, clock, names, world=World(config.world), transport=transport)
         except ValueError as exc:
             raise InputError(f"{rec.path}: the recording lacks the traffic of opening the instruments and {exc}") from None
-    tag = f"replay{os.getpid()}-{next(_ids)}"
-    backends: dict[tuple[str, str], Backend] = {}
-    registered: list[str] = []
+    ctx = ReplayContext(rec, rec.links(drivers), clock, mode, transport == "inprocess", prelude,
+                        f"replay{os.getpid()}-{next(_ids)}", on_exhausted,
+                        kwargs={n: driver_kwargs(config.instruments[n]) for n in names})
     ports: dict[str, str] = {}
-    kwargs: dict[str, dict[str, Any]] = {n: driver_kwargs(config.instruments[n]) for n in names}
-
-    def serial(name: str, link: str, sub: str, cls=ReplaySerial, **extra) -> str:
-        reg = f"{tag}.{name}" + (f".{sub}" if sub else "")
-        pre = prelude[name].serial.get(sub) if name in prelude else None
-        b = cls(f"{name} {link}".strip(), links.get((name, link), []), on_exhausted, clock, prelude=pre, **extra)
-        backends[(name, link)] = b
-        registry.register(reg, b)
-        registered.append(reg)
-        return f"sim://{reg}"
-
     try:
         for name in names:
             inst = config.instruments[name]
-            if inst.driver == "acs_board":
-                ports[name] = serial(name, "", "", AcsBoardReplay, stream=rec.stream(name), description=inst.frames)
-            elif inst.driver in ("stepper_bench", "thermocouple_reader"):
-                ports[name] = serial(name, "", "")
-            elif inst.driver == "tvac" and controller_on_rtu(inst, mode):
-                scheme = "modbus-rtu+stream://" if inprocess else "modbus-rtu://"
-                ports[name] = scheme + serial(name, "controller", "", ModbusRtuReplay)
-                kwargs[name]["gauge_url"] = serial(name, "gauge", "gauge")
-            elif inst.driver == "tvac" and inprocess:
-                ports[name] = "modbus-tcp+stream://" + serial(name, "controller", "", ModbusTcpReplay)
-                kwargs[name]["gauge_url"] = serial(name, "gauge", "gauge")
-            elif inst.driver == "tvac":
-                addr = None
-                if name in prelude:
-                    host_port = prelude[name].url.split("://", 1)[1]
-                    h, p = host_port.rsplit(":", 1)
-                    addr = (h, int(p))
-                b = ModbusReplayServer(f"{name} controller", links.get((name, "controller"), []), on_exhausted, addr)
-                backends[(name, "controller")] = b
-                ports[name] = f"modbus-tcp://127.0.0.1:{b.port}"
-                kwargs[name]["gauge_url"] = serial(name, "gauge", "gauge")
-            elif inst.driver == "rate_table":
-                node = inst.sim.node_id if inst.sim is not None else 1
-                channel = parse_can_url(prelude[name].url).channel if name in prelude else f"{tag}-{name}"
-                b = CanReplayNode(name, links.get((name, ""), []), on_exhausted, channel, sync=inprocess)
-                backends[(name, "")] = b
-                ports[name] = f"can://{'sync' if inprocess else 'virtual'}/{channel}?node={node}"
-                kwargs[name]["clock"] = clock
+            ports[name] = kinds.load(inst.kind.replay)(ctx, name, inst) if inst.kind.replay else ctx.serial(name, "", "")
+            if inst.kind.needs_clock:
+                ctx.kwargs[name]["clock"] = clock
         instruments: dict[str, Any] = {}
         lab = Lab(clock, mode, instruments, ports, {}, {n: config.instruments[n].poll_interval_s for n in names},
                   world if mode == "sim" else None)
-        lab.kinds = {n: config.instruments[n].driver for n in names}
-        lab.signals = config.signals()
-        lab.config_limits = config.limits()
-        rl = ReplayLab(lab, backends, registered, prelude)
+        describe_lab(lab, config, names)
+        rl = ReplayLab(lab, ctx.backends, ctx.registered, prelude)
         if not prelude:
             rl.go_live()
-        for name in names:
-            inst = config.instruments[name]
-            hook = None
-            if on_traffic is not None:
-                hook = (lambda n: (lambda d, t, raw: on_traffic(n, d, t, raw)))(name)
-            opener = (lambda cls, url, inst, hook, kw: (lambda: cls.open(url, baudrate=inst.baudrate, timeout_s=inst.timeout_s,
-                                                                          on_traffic=hook, **kw)))(
-                DRIVER_CLASSES[inst.driver], ports[name], inst, hook, kwargs[name])
-            instruments[name] = opener()
-            if isinstance(getattr(lab, "openers", None), dict):
-                lab.openers[name] = opener  # the runner reopens a link after a fault: on the same backend
+        open_drivers(lab, config, names, ctx.kwargs, on_traffic)
         if prelude:
             rl.go_live()
         return rl
     except BaseException:
-        for b in backends.values():
+        for b in ctx.backends.values():
             close = getattr(b, "close", None)
             if close is not None:
                 close()
-        for reg in registered:
+        for reg in ctx.registered:
             registry.unregister(reg)
         for sim in prelude.values():
             sim.close()

@@ -13,6 +13,7 @@ stream names, recorded paths of plain components), and :func:`procedure_file` /
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -25,16 +26,20 @@ from typing import Callable
 import numpy as np
 
 from bench.errors import InputError
+from bench.kinds import registry
 from bench.inputs import CONFIG_ROOTS, YAML_LIMIT_BYTES, confined_path, read_input_bytes
 from bench.record import layout, read_stream
 from bench.record.reader import EventRow, RunSummary, Traffic, read_format_version, read_summary_and_traffic
 from bench.replay.workspace import Workspace, checked_path, shown
 from bench.yamlsrc import parse_yaml
 
-TWO_LINK_DRIVER = "tvac"
-"""The driver of an instrument reached over two links (the chamber: Modbus controller, serial gauge)."""
-MODBUS_RE = re.compile(r"^(read|write) \d+")
-"""Event names of the chamber's Modbus controller; every other ``tvac`` event is its serial gauge."""
+
+@functools.lru_cache(maxsize=None)
+def _link_patterns(driver: str) -> tuple[tuple[str, re.Pattern[str]], ...]:
+    """The links of an instrument of kind ``driver`` reached over several (``Kind.links``: name and
+    the regex of its recorded event names, the last one the default); empty for one link."""
+    kind = registry.get(driver)
+    return tuple((name, re.compile(rx)) for name, rx in kind.links) if kind is not None else ()
 
 REPLAY_NEEDS = "the run's parameters and sub-procedures ('procedure' event)"
 
@@ -53,7 +58,7 @@ class Exchange:
 def link_keys(traffic: Traffic, drivers: dict[str, str]) -> list[tuple[str, str] | None]:
     """The (instrument, link) of every traffic event (:func:`link_of`), None for an instrument not
     in ``drivers`` (instrument -> driver name); worked out once per distinct (instrument, message)."""
-    one_link = {s: (s, "") for s in set(traffic.source) if s in drivers and drivers[s] != TWO_LINK_DRIVER}  # link_of is "" for them
+    one_link = {s: (s, "") for s in set(traffic.source) if s in drivers and not _link_patterns(drivers[s])}  # link_of is "" for them
     known: dict[tuple[str, str], tuple[str, str] | None] = {}
     out = []
     for source, message in zip(traffic.source, traffic.message):
@@ -67,11 +72,14 @@ def link_keys(traffic: Traffic, drivers: dict[str, str]) -> list[tuple[str, str]
 
 
 def link_of(driver: str, message: str) -> str:
-    """Which link of an instrument an event belongs to: ``controller`` / ``gauge`` for the chamber
-    (told apart by the event names: Modbus events are ``read N`` / ``write N``), ``""`` otherwise."""
-    if driver == TWO_LINK_DRIVER:
-        return "controller" if MODBUS_RE.match(message) else "gauge"
-    return ""
+    """Which link of an instrument an event belongs to (its kind's ``links``: the chamber's Modbus
+    ``controller`` events are ``read N`` / ``write N``, the rest is its ``gauge``); ``""`` for an
+    instrument on one link."""
+    patterns = _link_patterns(driver)
+    for name, rx in patterns[:-1]:
+        if rx.match(message):
+            return name
+    return patterns[-1][0] if patterns else ""
 
 
 @dataclass

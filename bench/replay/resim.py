@@ -28,14 +28,11 @@ from bench.procedure import Procedure
 from bench.record import RunRecorder, layout
 from bench.replay.recording import Recording
 
-BOARD_DRIVER = "acs_board"
-"""The driver whose data stream the replay feeds from the recorded rows."""
-
-
 def board_streams(rec: Recording, config: LabConfig) -> list[str]:
     """Keys of the recorded streams the replay re-encodes from the recording: the data streams of
-    the board instruments (their monitor streams are polled readings, re-produced from replies)."""
-    boards = {n for n, i in config.instruments.items() if i.driver == BOARD_DRIVER}
+    the instruments whose kind streams (a board; their monitor streams are polled readings,
+    re-produced from replies)."""
+    boards = {n for n, i in config.instruments.items() if i.kind.streams}
     return [s.key for s in rec.summary.streams if s.key in boards]
 
 

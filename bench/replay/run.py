@@ -260,12 +260,11 @@ def _check_board_streams(rec: Recording, config) -> None:
     """The recorded board streams the replay re-encodes into frames have the board's columns, each
     of its row shape (the columns of the board's frame description in the recorded config);
     :class:`InputError` otherwise."""
-    from bench.runner.ingest import board_columns
-
     streams = {s.key: s for s in rec.summary.streams}
     for key in board_streams(rec, config):
         have = streams[key].shapes
-        for c in board_columns(config.instruments[key].frames):
+        columns = getattr(config.instruments[key].settings, "stream_columns", None)
+        for c in columns() if columns is not None else []:
             if have.get(c.name) != tuple(c.shape or ()):
                 got = "missing" if c.name not in have else f"of row shape {have[c.name]}"
                 raise InputError(f"{rec.path}: cannot be replayed: column {c.name} of board stream {layout.absolute(layout.stream_path(key))} "

@@ -203,6 +203,20 @@ def fig_rates(gyro: Sequence[Series], reference: Sequence[Series], title: str = 
     return fig
 
 
+def fig_series(series: Sequence[Series], title: str) -> Any:
+    """Each series (label ``name (units)``) on its own axis vs run time: an instrument's readings as
+    its kind declares them (``Kind.figures``)."""
+    if not series:
+        raise ValueError("nothing to plot")
+    step, xlabel = time_axis(_span(series))
+    fig, axes = _figure(len(series), sharex=True)
+    for r, s in enumerate(series):
+        _plot_series(axes[r, 0], [s], step)
+        _finish(axes[r, 0], xlabel if r == len(series) - 1 else "", s.label, title if r == 0 else "", legend=False)
+    fig.tight_layout()
+    return fig
+
+
 # ---- thermal calibration --------------------------------------------------------------------------
 def _poly(c: Sequence[float], x: np.ndarray) -> np.ndarray:
     """Polynomial with ascending coefficients ``c`` at ``x``."""

@@ -35,7 +35,7 @@ import numpy as np
 from bench import __version__
 from bench.analysis.result import CalibrationResult
 from bench.errors import InputError
-from bench.record import layout
+from bench.record import by_kind, layout
 from bench.record.checks import (CheckResult, check_results, display_value, procedure_info, run_verdict,  # noqa: F401 (re-exported)
                                  signal_units)
 from bench.record.reader import RunSummary, read_run_summary, read_stream
@@ -54,13 +54,7 @@ ANALYSES: dict[str, tuple[str, str]] = {
 }
 """Report key → (module with ``calibrate(ds) -> CalibrationResult``, what it is called in notes)."""
 
-BOARD = "acs_board"
-CHAMBER_MONITOR = layout.monitor_key("tvac")
-THERMOCOUPLE_MONITOR = layout.monitor_key("thermocouples")
-TABLE_MONITOR = layout.monitor_key("rate_table")
 AXES = ("x", "y", "z")
-BOARD_TEMP_LABELS = ("board temp: gyro die", "board temp: accel die", "board temp: board")
-"""Labels of the ACS board's three temperature channels (docs/run-file.md)."""
 ZERO_RATE_DPS = 1e-9
 """A reference rate at most this large (deg/s) counts as zero (thermal fit samples)."""
 TEMP_SWEEP_MIN_C = 5.0
@@ -146,6 +140,7 @@ def report_sections(summary: RunSummary, data: "RunData", ds: Any, ds_note: str)
         section("Temperature and pressure", "" if data.temperatures or data.pressure is not None else
                 "no temperature or pressure recorded (no chamber, thermocouple or board stream).", lambda: section_environment(data)),
         section("Rates", "" if data.gyro or data.reference else "no gyro output or table rate recorded.", lambda: section_rates(data)),
+        *([Section("Instrument readings", section_kind_figures(data))] if data.kind_figures else []),
         section("Bias vs temperature", board_why or why_no_sweep(ds),
                 lambda: analysis("thermal", ds, lambda r: section_thermal(r.json, ds))),
         section("Rate transfer", board_why or why_no_rate_steps(data),
@@ -216,71 +211,106 @@ class RunData:
     reference: list[F.Series] = field(default_factory=list)
     windows: list[Window] = field(default_factory=list)
     window_checks: list[S.WindowCheck] = field(default_factory=list)
+    board: str = ""
+    """The instrument whose gyro stream the windows average (the first instrument that streams a gyro)."""
+    kind_figures: list[tuple[str, list[F.Series], str]] = field(default_factory=list)
+    """The figures instruments' kinds declare (``Kind.figures``): title, series, note."""
 
 
 def load_run_data(path: Path, summary: RunSummary) -> RunData:
     """Read the monitors and the board stream of the run and reduce them for plotting; window means
-    and the static test of every window are computed from the full-rate data first."""
+    and the static test of every window are computed from the full-rate data first. Streams are found
+    by kind and role (bench/record/by_kind.py), whatever the instruments are called."""
     streams = {s.key: s for s in summary.streams}
     data = RunData()
     temps: list[S.Trace] = []  # temperatures that make a window not static (°C)
     rates: list[S.Trace] = []  # table rates (deg/s)
     angles: list[S.Trace] = []  # table tilt and bench angle (deg)
+    cache: dict[str, dict[str, np.ndarray]] = {}
 
     def series(label: str, t: np.ndarray, y: np.ndarray) -> F.Series:
         return F.Series(label, *F.envelope(*F.break_gaps(t, y)))
 
-    if CHAMBER_MONITOR in streams and streams[CHAMBER_MONITOR].rows:
-        mon = read_stream(path, CHAMBER_MONITOR)
-        for col, label in (("air_temp", "chamber air"), ("mount_temp", "chamber mount")):
-            if col in mon:
-                data.temperatures.append(series(label, mon["time"], mon[col]))
-        if "air_temp" in mon:
-            temps.append(S.Trace("chamber air temperature", np.asarray(mon["time"], float), np.asarray(mon["air_temp"], float)))
-        if "pressure" in mon:
-            data.pressure = series("chamber pressure", mon["time"], mon["pressure"])
-    if THERMOCOUPLE_MONITOR in streams and streams[THERMOCOUPLE_MONITOR].rows:
-        mon = read_stream(path, THERMOCOUPLE_MONITOR)
-        for col in (c for c in mon if c != "time"):
-            data.temperatures.append(series(f"thermocouple {col}", mon["time"], mon[col]))
-    if TABLE_MONITOR in streams and streams[TABLE_MONITOR].rows:
-        mon = read_stream(path, TABLE_MONITOR)
-        tm = np.asarray(mon["time"], dtype=float)
-        if "rate" in mon:
-            data.reference.append(series("rate table rate", tm, mon["rate"]))
-            rates.append(S.Trace("rate table", tm, np.asarray(mon["rate"], dtype=float)))
-        if "tilt" in mon:
-            angles.append(S.Trace("rate table tilt", tm, np.asarray(mon["tilt"], dtype=float)))
-    for key in streams:
-        if key.startswith("stepper_bench") and streams[key].rows:
-            mon = read_stream(path, key)
-            if "angle" in mon and mon["time"].size > 1:
-                t = np.asarray(mon["time"], dtype=float)
-                angle = np.unwrap(np.asarray(mon["angle"], dtype=float), period=360.0)
-                angles.append(S.Trace("stepper bench", t, angle))
-                ok = np.concatenate([[True], np.diff(t) > 0])
-                if ok.sum() > 1:
-                    data.reference.append(series("stepper bench rate (from angle)", t[ok], np.gradient(angle[ok], t[ok])))
+    def column(c: by_kind.RoleColumn) -> tuple[np.ndarray, np.ndarray] | None:
+        """(time, values) of a monitor column with rows, None when it has none."""
+        if not streams[c.key].rows:
+            return None
+        if c.key not in cache:
+            cache[c.key] = read_stream(path, c.key)
+        mon = cache[c.key]
+        return (np.asarray(mon["time"], dtype=float), np.asarray(mon[c.column], dtype=float)) if c.column in mon else None
+
+    roles = ("air_temp", "mount_temp", "pressure", "unit_temp", "table_rate", "table_tilt", "bench_angle")  # the figures' order
+    for c in (c for role in roles for c in by_kind.role_columns(summary, role)):
+        got = column(c) if c.monitor else None
+        if got is None:
+            continue
+        tm, y = got
+        role = c.signal.role
+        if role in ("air_temp", "mount_temp", "unit_temp"):
+            data.temperatures.append(series(c.label, tm, y))
+            if role == "air_temp":
+                temps.append(S.Trace(f"{c.label} temperature", tm, y))
+        elif role == "pressure":
+            data.pressure = series(c.label, tm, y)
+        elif role == "table_rate":
+            data.reference.append(series(c.label, tm, y))
+            rates.append(S.Trace(c.label.removesuffix(" rate"), tm, y))
+        elif role == "table_tilt":
+            angles.append(S.Trace(c.label, tm, y))
+        elif role == "bench_angle" and tm.size > 1:
+            angle = np.unwrap(y, period=360.0)
+            angles.append(S.Trace(c.label, tm, angle))
+            ok = np.concatenate([[True], np.diff(tm) > 0])
+            if ok.sum() > 1:
+                data.reference.append(series(f"{c.label} rate (from angle)", tm[ok], np.gradient(angle[ok], tm[ok])))
+    cache.clear()
     t = np.zeros(0)
     gyro = None
-    if BOARD in streams and streams[BOARD].rows:
-        board = read_stream(path, BOARD)
+    sensors = [c for c in by_kind.role_columns(summary, "gyro") if not c.monitor and streams[c.key].rows]
+    if sensors:
+        data.board = sensors[0].instrument
+        key = sensors[0].key
+        board = read_stream(path, key)
         t = np.asarray(board["time"], dtype=float)
-        if "temp" in board:
-            temp = np.asarray(board["temp"], dtype=float).reshape(t.size, -1)
+        temp_col = next((c for c in by_kind.role_columns(summary, "sensor_temp") if c.key == key), None)
+        if temp_col is not None and temp_col.column in board:
+            temp = np.asarray(board[temp_col.column], dtype=float).reshape(t.size, -1)
+            labels = temp_col.signal.labels
             for k in range(temp.shape[1]):
-                label = BOARD_TEMP_LABELS[k] if k < len(BOARD_TEMP_LABELS) else f"board temp {k}"
+                label = labels[k] if k < len(labels) else f"{temp_col.label or 'board temp'} {k}"
                 data.temperatures.append(series(label, t, temp[:, k]))
             temps.insert(0, S.Trace("sensor temperature", t, temp[:, 0].copy()))
-        if "gyro" in board:
-            gyro = np.asarray(board["gyro"], dtype=float).reshape(t.size, -1)
+        if sensors[0].column in board:
+            gyro = np.asarray(board[sensors[0].column], dtype=float).reshape(t.size, -1)
             for k in range(min(gyro.shape[1], 3)):
                 data.gyro.append(series(f"gyro {AXES[k]}", t, gyro[:, k]))
         del board
     data.windows = _windows(summary, t, gyro)
     data.window_checks = [S.check_window(w.name, w.t0, w.t1, w.samples, commanded_rate_dps=w.rate_dps, step_type=w.step_type,
                                          rates=rates, angles=angles, temperatures=temps) for w in data.windows]
+    data.kind_figures = _kind_figures(path, summary, streams, series)
     return data
+
+
+def _kind_figures(path: Path, summary: RunSummary, streams: dict, series: Callable[..., F.Series]) -> list[tuple[str, list[F.Series], str]]:
+    """The figures each recorded instrument's kind declares (``Kind.figures``), from its monitor."""
+    from bench.kinds import registry
+
+    out = []
+    for name, kind_name in by_kind.instrument_kinds(summary.instruments).items():
+        kind = registry.get(kind_name)
+        key = layout.monitor_key(name)
+        if kind is None or not kind.figures or key not in streams or not streams[key].rows:
+            continue
+        mon = read_stream(path, key)
+        t = np.asarray(mon["time"], dtype=float)
+        for fig in kind.figures:
+            names = [c for pattern in fig.signals for c in mon if c != "time" and fnmatch.fnmatchcase(c, pattern)]
+            got = [series(f"{c} ({streams[key].columns.get(c, '')})", t, np.asarray(mon[c], dtype=float)) for c in names]
+            if got:
+                out.append((f"{name}: {fig.title}", got, fig.note))
+    return out
 
 
 def _windows(summary: RunSummary, t: np.ndarray, gyro: np.ndarray | None) -> list[Window]:
@@ -321,8 +351,9 @@ def _windows(summary: RunSummary, t: np.ndarray, gyro: np.ndarray | None) -> lis
 
 def _load_dataset(path: Path, summary: RunSummary) -> tuple[Any, str]:
     """The analysis dataset of the run, or ``(None, why not)``."""
-    if not any(s.key == BOARD and s.rows for s in summary.streams):
-        return None, "the run has no ACS board data (the analyses need the sensor outputs)."
+    rows = {s.key: s.rows for s in summary.streams}
+    if not any(rows.get(c.key) for c in by_kind.role_columns(summary, "gyro") if not c.monitor):
+        return None, "the run has no sensor data (no stream of a board's gyro: the analyses need the sensor outputs)."
     from bench.analysis.dataset import load_dataset
 
     try:
@@ -504,6 +535,12 @@ def section_rates(data: RunData) -> str:
         return note("No gyro output or table rate recorded in this run.")
     return figure_png(F.fig_rates(data.gyro, data.reference),
                       "Gyro outputs and reference rate (deg/s) vs run time; long series drawn as min/max envelopes.")
+
+
+def section_kind_figures(data: RunData) -> str:
+    """The figures the instruments' kinds declare (``Kind.figures``: a supply's voltage and current)."""
+    return "".join(figure_png(F.fig_series(series, title), f"{title}: " + (note + " " if note else "") + "Long series drawn as min/max envelopes.")
+                   for title, series, note in data.kind_figures)
 
 
 # ---- analyses ----------------------------------------------------------------------------------------
@@ -733,6 +770,13 @@ def section_pre_post(summary: RunSummary, data: RunData | None = None) -> str:
     return out
 
 
+def _board_gyro(signal: str, data: RunData) -> bool:
+    """Whether ``signal`` is an axis of the board's gyro (the run's board; any instrument's ``gyro``
+    when the data names no board)."""
+    inst, _, rest = signal.partition(".")
+    return rest.startswith("gyro.") and (not data.board or inst == data.board)
+
+
 def _stage_errors(comps: list[CheckResult], by_name: dict[str, CheckResult], data: RunData | None) -> dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """Per board gyro signal and stage: (commanded rates, percent errors) of the windows the checks used."""
     if data is None or not data.windows:
@@ -740,7 +784,7 @@ def _stage_errors(comps: list[CheckResult], by_name: dict[str, CheckResult], dat
     out: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
     for c in comps:
         for chk in (by_name.get(c.reference or ""), c):
-            if chk is None or not chk.signal.startswith(f"{BOARD}.gyro.") or not chk.window:
+            if chk is None or not _board_gyro(chk.signal, data) or not chk.window:
                 continue
             axis = chk.signal.rsplit(".", 1)[-1]
             if axis not in AXES:

@@ -30,8 +30,16 @@ TEMP_DRIFT_MAX_C = 0.5
 """Largest temperature drift over a static window (°C): the 0.5 °C fluctuation below which the
 procedures (ESTCube-2 section 3.4, ``band: 0.5 degC``) and the thermal calibration's reversal test
 count a temperature as stable. A thermal ramp at NPSAT1's 0.47 °C/min exceeds it within 65 s."""
-MOVING_STEP_TYPES = frozenset({"table_rate", "table_move", "table_tilt", "bench_rate", "vibrate", "mount"})
-"""Step types during which a window that they record has the unit moving."""
+CORE_MOVING_STEP_TYPES = frozenset({"vibrate", "mount"})
+"""Core step types during which a window that they record has the unit moving."""
+
+
+def moving_step_types() -> frozenset[str]:
+    """Step types during which a window that they record has the unit moving: the core's and the
+    kinds' steps that move the unit (``StepDef.moves``: a table or bench turning)."""
+    from bench.kinds import registry
+
+    return CORE_MOVING_STEP_TYPES | {d.type for k in registry.kinds().values() for d in k.steps if d.moves}
 
 
 @dataclass
@@ -125,7 +133,7 @@ def check_window(name: str, t0: float, t1: float, samples: int, *, commanded_rat
     w = WindowCheck(name, t0, t1, samples)
     if commanded_rate_dps:
         w.reasons.append(f"rate step at {commanded_rate_dps:+g} deg/s (window name)")
-    if step_type in MOVING_STEP_TYPES:
+    if step_type in moving_step_types():
         w.reasons.append(f"recorded during a {step_type} step")
     motions = [(tr.label, peak_rate(tr, t0, t1)) for tr in rates or []]
     motions += [(tr.label, angle_rate(tr, t0, t1)) for tr in angles or []]

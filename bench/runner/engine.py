@@ -144,7 +144,7 @@ class Runner:
         may interrupt the terminal library in the middle of its own work)."""
         self.operator_events: list[tuple[str, str, str, str]] = []
         """Operator actions taken elsewhere (:meth:`operator_event`), recorded by the runner's thread."""
-        self.handlers: dict[str, Callable[["Runner", Step], tuple[str, str]]] = dict(step_handlers.HANDLERS)
+        self.handlers: dict[str, Callable[["Runner", Step], tuple[str, str]]] = {t: step_handlers.handler(t) for t in {s.type for s in procedure.steps}}
 
     # ---- abort and pause ----------------------------------------------------------------------
     def request_abort(self, reason: str) -> None:
@@ -203,6 +203,8 @@ class Runner:
                 raise StepAbort(f"interlock {lock.name!r} watches {inst!r}, which is not open in this run")
         self.rec.start()
         self.rec.event("run_start", "runner", f"{self.procedure.name}: {len(self.procedure.steps)} steps, mode {self.lab.mode}", t_s=self.clock.now())
+        for name, told in getattr(self.lab, "powered_up", {}).items():  # before the unit was opened (config powered_by)
+            self.rec.event("note", "runner", f"{name} powered at opening: {told}", t_s=self.clock.now())
         # what a replay needs to re-execute the same procedure: parameter values in force and the
         # text of every called sub-procedure (the main text is in /texts)
         self.rec.event("procedure", "runner", self.procedure.name, t_s=self.clock.now(), data=json.dumps({

@@ -37,8 +37,9 @@ class Instrument(Protocol):
 class Polled(Protocol):
     """An instrument read at its poll interval; each reading is one row of ``/streams/NAME/monitor``."""
 
-    def monitor_columns(self) -> list[tuple[str, str]]:
-        """``(column, unit)`` of each reading; also sets the instrument up for polling."""
+    def monitor_columns(self) -> list[str]:
+        """The column of each reading (its units are the kind's: ``Kind.signals``); also sets the
+        instrument up for polling."""
 
     def monitor(self) -> dict[str, float]:
         """One reading of every column (NaN where the instrument has no valid value)."""

@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Callable
 
 
 from bench.errors import KNOWN_ERRORS, BenchError, DeviceFault, InstrumentError
-from bench.procedure.signals import parse_signal
+from bench.kinds import registry
+from bench.procedure.signals import monitor_units, parse_signal
 from bench.record import Column, layout
 from bench.runner.instruments import Polled
 
@@ -25,20 +26,11 @@ if TYPE_CHECKING:  # pragma: no cover
 RECONNECT_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
 """Waits between reconnection attempts after a link fault (s of run time); the last repeats."""
 
-CHAMBER_SAFETY_MARGIN_C = 5.0
-"""A chamber temperature reading more than this beyond the chamber's set-point limits (defaults, lab
-config, procedure: the narrowest) aborts the run whatever the procedure's interlocks say: the
-controller is not controlling (runaway heater or cooler, failed sensor). Our choice [U]: above the
-overshoot of a controlled ramp, below damage."""
-
-ENVELOPE_COLUMNS = ("air_temp", "mount_temp")
-"""The chamber readings (degC) the lab's safety envelope watches."""
-
-
-def outside_envelope(value_c: float, low_c: float | None, high_c: float | None) -> bool:
-    """Whether a chamber temperature (degC) lies beyond the set-point limits ``low_c``..``high_c``
-    by more than :data:`CHAMBER_SAFETY_MARGIN_C`: the chamber is not under control."""
-    return (low_c is not None and value_c < low_c - CHAMBER_SAFETY_MARGIN_C) or (high_c is not None and value_c > high_c + CHAMBER_SAFETY_MARGIN_C)
+def outside_envelope(value: float, low: float | None, high: float | None, margin: float) -> bool:
+    """Whether a reading lies beyond the limits ``low``..``high`` by more than ``margin`` (a kind's
+    :class:`~bench.kinds.record.Envelope`: a chamber temperature beyond its set-point limits by more
+    than 5 degC: the chamber is not under control)."""
+    return (low is not None and value < low - margin) or (high is not None and value > high + margin)
 
 
 DEFAULT_POLL_INTERVAL_S = 1.0
@@ -72,16 +64,16 @@ class LabMonitor:
         """Instrument -> run time of its next reading (s)."""
         self.last: dict[str, dict[str, float]] = {}
         self.envelopes: dict[str, tuple] = {}
+        """Instrument with an envelope -> its limits (low, high, source), read at its first reading."""
         self.signals: dict[str, dict[str, str]] = {}
         """Instrument -> column -> its signal name (``INSTRUMENT.COLUMN``), made once."""
         self.units: dict[str, dict[str, str]] = {}
         """Instrument -> column -> its units (as its monitor stream declares them)."""
-        """Chamber -> its set-point limits (low, high degC, source), read at its first reading."""
 
     def declare(self, name: str, drv: Polled) -> None:
         """Declare ``/streams/NAME/monitor`` with the driver's columns; first reading due at 0 s."""
         interval = self.interval(name)
-        cols = [Column(c, u, "f8") for c, u in drv.monitor_columns()]
+        cols = [Column(c, monitor_units(c, self.run.lab.kinds.get(name)), "f8") for c in drv.monitor_columns()]
         self.units[name] = {c.name: c.units for c in cols}
         self.keys[name] = self.run.rec.add_stream(name, cols, layout.MONITOR_STREAM, rate_hz=1.0 / interval)
         self.due[name] = 0.0
@@ -226,25 +218,28 @@ class LabMonitor:
                 self.trip(f"interlock {lock.name!r}: {lock.signal} = {v:.4g} beyond {lim}")
 
     def check_lab_safety(self, inst: str, values: dict[str, float]) -> None:
-        """Always-on limits of the lab, independent of the procedure's interlocks: the chamber's
-        air and mount temperatures stay within its set-point limits ± CHAMBER_SAFETY_MARGIN_C."""
+        """Always-on limits of the lab, independent of the procedure's interlocks: an instrument whose
+        kind has an envelope keeps its readings within its limits ± the envelope's margin (a
+        chamber's air and mount within its set-point limits ± 5 degC)."""
         run = self.run
-        if run.lab.kinds.get(inst) != "tvac":
+        kind = registry.get(run.lab.kinds.get(inst, ""))
+        env = kind.envelope if kind is not None else None
+        if env is None:
             return
         limits = self.envelopes.get(inst)
         if limits is None:
             from bench.procedure.limits import effective_limits
 
-            limits = self.envelopes[inst] = effective_limits("tvac", run.lab.config_limits.get(inst, {}),
-                                                             run.procedure.limits.get(inst, {}))["set_point"]
+            limits = self.envelopes[inst] = effective_limits(kind.name, run.lab.config_limits.get(inst, {}),
+                                                             run.procedure.limits.get(inst, {}))[env.limit]
         lo, hi, src = limits
-        for col in ENVELOPE_COLUMNS:
+        for col in env.columns:
             v = values.get(col)
             if v is None or math.isnan(v):
                 continue
-            if outside_envelope(v, lo, hi):
-                self.trip(f"lab safety: {inst}.{col} = {v:.1f} degC beyond the chamber limits "
-                          f"{lo:g}..{hi:g} degC ({src}) by more than {CHAMBER_SAFETY_MARGIN_C:g} degC: the chamber is not under control")
+            if outside_envelope(v, lo, hi, env.margin):
+                self.trip(f"lab safety: {inst}.{col} = {v:.1f} {env.units} beyond the {kind.what} limits "
+                          f"{lo:g}..{hi:g} {env.units} ({src}) by more than {env.margin:g} {env.units}: the {kind.what} is not under control")
 
     def check_stalls(self, t: float) -> None:
         """Trip a stall interlock whose stream sent no frame for longer than its limit (s)."""

@@ -4,7 +4,7 @@ On an abort (:meth:`bench.runner.engine.Runner._abort_path`) one thread per inst
 driver's ``safe_state()``; the moving axes (rate table, stepper bench) are started first, then the
 rest. A link fault is retried through a reconnection (:meth:`LabMonitor.restore_link`) bounded by
 the instrument's ``reconnect_timeout`` *and* what is left of its own deadline (config
-``safe_state_timeout``, default :data:`bench.config.SAFE_STATE_TIMEOUT_S` per driver), so one
+``safe_state_timeout``, default its kind's ``safe_state_timeout_s``), so one
 unreachable instrument never delays another. The main thread watches the deadlines; an instrument
 still not confirmed when its deadline passes is reported as such (its thread is told to stop trying
 and left behind as a daemon: a driver call cannot be interrupted, and every driver wait is bounded).
@@ -35,8 +35,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
 
 from bench.clock import VirtualClock
-from bench.config import DEFAULT_SAFE_STATE_TIMEOUT_S, SAFE_STATE_TIMEOUT_S
+from bench.config import DEFAULT_SAFE_STATE_TIMEOUT_S
 from bench.errors import DeviceFault, InstrumentError
+from bench.kinds import registry
 from bench.runner.monitor import describe, gap_message
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -46,8 +47,6 @@ if TYPE_CHECKING:  # pragma: no cover
 Record = Callable[..., None]
 """``record(kind, source, message, *, t_s=None, data=b"")``: one event into the run file."""
 
-MOVING_KINDS = ("rate_table", "stepper_bench")
-"""Driver kinds told first: what moves can harm the unit soonest."""
 WATCH_PERIOD_WALL_S = 0.02
 """How often the main thread looks at the deadlines on the wall clock (s)."""
 LOCKSTEP_WAIT_WALL_S = 0.002
@@ -60,12 +59,33 @@ def deadline_of(run: "Runner", name: str) -> float:
     lab = run.lab
     if name in lab.safe_state_timeouts:
         return lab.safe_state_timeouts[name]
-    return SAFE_STATE_TIMEOUT_S.get(lab.kinds.get(name, getattr(lab.instruments[name], "kind", "")), DEFAULT_SAFE_STATE_TIMEOUT_S)
+    kind = registry.get(lab.kinds.get(name, getattr(lab.instruments[name], "kind", "")))
+    return kind.safe_state_timeout_s if kind is not None else DEFAULT_SAFE_STATE_TIMEOUT_S
+
+
+def _moves(kind: str) -> bool:
+    k = registry.get(kind)
+    return k is not None and k.moves
 
 
 def safe_state_order(names: list[str], kinds: dict[str, str]) -> list[str]:
-    """``names`` with the moving axes (:data:`MOVING_KINDS`) first, each group in its own order."""
-    return sorted(names, key=lambda n: kinds.get(n, "") not in MOVING_KINDS)
+    """``names`` with what moves first (``Kind.moves``: it can harm the unit soonest), each group in its own order."""
+    return sorted(names, key=lambda n: not _moves(kinds.get(n, "")))
+
+
+def safe_state_waves(names: list[str], powered_by: dict[str, tuple[str, str]]) -> list[list[str]]:
+    """``names`` (in order) in waves told one after the other: a supply after everything it powers
+    has ended its own safe state (the unit is told while it still has power; then its power goes off);
+    everything else in the first wave."""
+    left = list(names)
+    waves: list[list[str]] = []
+    while left:
+        wave = [n for n in left if not any(c in left for c, (supplier, _) in powered_by.items() if supplier == n and c != n)]
+        if not wave:  # a loop of supplies: tell the rest at once
+            wave = list(left)
+        waves.append(wave)
+        left = [n for n in left if n not in wave]
+    return waves
 
 
 @dataclass
@@ -84,6 +104,8 @@ class SafeStateOutcome:
     error: str = ""
     t_end_s: float = 0.0
     wall_s: float = 0.0
+    t_abort_s: float | None = None
+    """Run time of the abort when the instrument was told later (a supply, after what it powers)."""
 
     @property
     def after_s(self) -> float:
@@ -98,11 +120,13 @@ class SafeStateOutcome:
     def message(self) -> str:
         """The event's message: what was told, or why not, with the timing."""
         within = f"deadline {self.deadline_s:g} s"
+        after = "the abort" if self.t_abort_s is None else \
+            f"it was told, {self.t_told_s - self.t_abort_s:.2f} s after the abort once what it powers had ended"
         if self.outcome == "confirmed":
-            when = f"confirmed {self.after_s:.2f} s after the abort" + (f", beyond its {within}" if self.late else f" ({within})")
+            when = f"confirmed {self.after_s:.2f} s after {after}" + (f", beyond its {within}" if self.late else f" ({within})")
             return f"{self.told or 'safe state reached'}; {when}"
         if self.outcome == "failed":
-            return f"safe state failed {self.after_s:.2f} s after the abort ({within}): {self.error}"
+            return f"safe state failed {self.after_s:.2f} s after {after} ({within}): {self.error}"
         return f"safe state not confirmed within its {within} (told {self.t_told_s:.2f} s; still trying when given up)"
 
     def data(self) -> bytes:
@@ -194,6 +218,8 @@ class SafeStatePhase:
         self.notes: queue.SimpleQueue[_Note] = queue.SimpleQueue()
         self.wake = threading.Event()
         self.lockstep = isinstance(run.clock, VirtualClock)
+        self.t_abort: float | None = None
+        """The abort's run time while a later wave is told (a supply after what it powers), else None."""
 
     def announcement(self) -> str:
         """One line: who is told, in which order, with which deadlines."""
@@ -202,10 +228,19 @@ class SafeStatePhase:
 
     def run_all(self) -> list[SafeStateOutcome]:
         """Tell every instrument, wait for each until it confirms, fails or its deadline passes;
-        record and show each outcome as it comes. Returns the outcomes in the order told."""
+        record and show each outcome as it comes. Returns the outcomes in the order told. A supply is
+        told after what it powers (:func:`safe_state_waves`)."""
+        out: list[SafeStateOutcome] = []
+        t_abort = self.run.clock.now()
+        for wave in safe_state_waves(self.names, getattr(self.run.lab, "powered_by", {})):
+            out += self._run_wave(wave, t_abort)
+        return out
+
+    def _run_wave(self, names: list[str], t_abort: float) -> list[SafeStateOutcome]:
         run, clock = self.run, self.run.clock
         t0, wall0 = clock.now(), time.monotonic()
-        jobs = [_Job(n, self.deadlines[n], t0) for n in self.names]
+        self.t_abort = t_abort if t0 > t_abort else None
+        jobs = [_Job(n, self.deadlines[n], t0) for n in names]
         outcomes: dict[str, SafeStateOutcome] = {}
         events = SerialEvents(run.rec)
         try:
@@ -249,7 +284,7 @@ class SafeStatePhase:
         job.cancel.set()
         if self.lockstep and job.thread is not None:
             clock.leave(job.thread)  # its waits no longer hold run time back
-        return SafeStateOutcome(job.name, job.deadline_s, t0, "missed", t_end_s=clock.now(), wall_s=wall)
+        return SafeStateOutcome(job.name, job.deadline_s, t0, "missed", t_end_s=clock.now(), wall_s=wall, t_abort_s=self.t_abort)
 
     def _tick(self, pending: list[_Job]) -> None:
         """Let time pass until something may have changed: in virtual time, schedule the threads'
@@ -276,9 +311,9 @@ class SafeStatePhase:
                 raise
             except (InstrumentError, OSError) as exc:
                 told = self._reconnect_and_retry(job, exc)
-            result = SafeStateOutcome(name, job.deadline_s, job.t_told_s, "confirmed", told=str(told or ""))
+            result = SafeStateOutcome(name, job.deadline_s, job.t_told_s, "confirmed", told=str(told or ""), t_abort_s=self.t_abort)
         except Exception as exc:  # noqa: BLE001 - every outcome is reported, none may kill the phase
-            result = SafeStateOutcome(name, job.deadline_s, job.t_told_s, "failed", error=describe(exc))
+            result = SafeStateOutcome(name, job.deadline_s, job.t_told_s, "failed", error=describe(exc), t_abort_s=self.t_abort)
         finally:
             if self.lockstep:
                 clock.leave(threading.current_thread())

@@ -15,13 +15,14 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from rich.markup import escape
 
 from bench.errors import BenchError
 from bench.procedure import Step
-from bench.procedure.schema import PROMPT_TIMEOUT_S
+from bench.kinds import registry
+from bench.procedure.schema import PROMPT_TIMEOUT_S, kind_step
 from bench.procedure.signals import signal_units
 from bench.record import layout
 from bench.quantity_format import fmt_quantity, fmt_range
@@ -112,33 +113,6 @@ def _record_answer(r: "Runner", step: Step, info: dict) -> None:
     r.rec.event(layout.EVENT_OPERATOR, "prompt", json.dumps(info), t_s=r.clock.now(), step=step.index)
 
 
-def power(r: "Runner", step: Step) -> tuple[str, str]:
-    r.lab.instruments[step.params["instrument"]].sensor_power(step.params["on"])
-    return "done", "sensors on" if step.params["on"] else "sensors off"
-
-
-def configure(r: "Runner", step: Step) -> tuple[str, str]:
-    drv = r.lab.instruments[step.params["instrument"]]
-    done = []
-    if "odr" in step.params:
-        hz = step.params["odr"]
-        if abs(hz - round(hz)) > 1e-9:
-            raise ValueError(f"step {step.path}: output data rate must be a whole number of Hz, got {hz:g} Hz")
-        drv.set_odr(int(round(hz)))
-        done.append(f"odr {int(round(hz))} Hz")
-    if "moving_average" in step.params:
-        drv.set_moving_average(int(step.params["moving_average"]))
-        done.append(f"moving average N={int(step.params['moving_average'])}")
-    cfg = drv.get_config()
-    if not cfg.get("read_back", True):
-        return "done", ", ".join(done) + " (acknowledged; not read back: the board has no GET_CONFIG)"
-    if "odr" in step.params and cfg["odr_hz"] != int(round(step.params["odr"])) or (
-        "moving_average" in step.params and cfg["moving_avg_n"] != int(step.params["moving_average"])
-    ):
-        return "failed", ", ".join(done) + f" requested, but the board reports odr {cfg['odr_hz']} Hz, N={cfg['moving_avg_n']}"
-    return "done", ", ".join(done) + " (read back from the board)"
-
-
 def wait(r: "Runner", step: Step) -> tuple[str, str]:
     r.wait_until(step.params["duration"])
     return "done", ""
@@ -149,49 +123,6 @@ def record(r: "Runner", step: Step) -> tuple[str, str]:
     window = step.params.get("window") or step.name
     rows = r.recording(name, window, step.meta, lambda: r.wait_until(step.params["duration"]))
     return "done", f"{rows} rows in window {window!r}"
-
-
-def bit(r: "Runner", step: Step) -> tuple[str, str]:
-    mask = r.lab.instruments[step.params["instrument"]].run_bit()
-    expected = step.params["expect_mask"]
-    if mask == expected:
-        return "passed", f"failed-subsystem mask 0x{mask:04x}"
-    return "failed", f"failed-subsystem mask 0x{mask:04x}, expected 0x{expected:04x}"
-
-
-# ---- chamber ------------------------------------------------------------------------------------
-def set_temperature(r: "Runner", step: Step) -> tuple[str, str]:
-    p = step.params
-    drv = r.lab.instruments[p["instrument"]]
-    drv.set_point(p["set_point"], p.get("ramp", 0.0))
-    what = f"set point {p['set_point']:g} degC" + (f" at {p['ramp']:g} degC/min" if p.get("ramp") else "")
-    if not p.get("wait"):
-        return "done", what
-    sig = f"{p['instrument']}.air_temp"
-    ok = r.wait_until(p["timeout"], lambda: abs(r.read_signal(sig) - p["set_point"]) <= p["band"])
-    if not ok:
-        raise StepAbort(f"{p['instrument']}: chamber air did not reach {p['set_point']:g} degC ± {p['band']:g} within {p['timeout']:g} s (now {r.read_signal(sig):.1f} degC)")
-    return "done", f"{what}; reached ({r.read_signal(sig):.1f} degC)"
-
-
-def pump_down(r: "Runner", step: Step) -> tuple[str, str]:
-    p = step.params
-    r.lab.instruments[p["instrument"]].pump_down()
-    sig = f"{p['instrument']}.pressure"
-    if not r.wait_until(p["timeout"], lambda: r.read_signal(sig) <= p["pressure"]):
-        raise StepAbort(f"{p['instrument']}: pressure did not fall to {p['pressure']:g} Torr within {p['timeout']:g} s (now {r.read_signal(sig):.3g} Torr)")
-    r.in_vacuum = True
-    return "done", f"{r.read_signal(sig):.3g} Torr"
-
-
-def vent(r: "Runner", step: Step) -> tuple[str, str]:
-    p = step.params
-    r.in_vacuum = False
-    r.lab.instruments[p["instrument"]].vent()
-    sig = f"{p['instrument']}.pressure"
-    if not r.wait_until(p["timeout"], lambda: r.read_signal(sig) >= p["pressure"]):
-        raise StepAbort(f"{p['instrument']}: pressure did not rise to {p['pressure']:g} Torr within {p['timeout']:g} s")
-    return "done", f"{r.read_signal(sig):.3g} Torr"
 
 
 def wait_until_stable(r: "Runner", step: Step) -> tuple[str, str]:
@@ -229,67 +160,6 @@ def wait_until_stable(r: "Runner", step: Step) -> tuple[str, str]:
         raise StepAbort(f"{p['signal']} not stable within {fmt_quantity(p['band'], units)} over {fmt_quantity(p['hold'], 's')} "
                         f"after {fmt_quantity(p['timeout'], 's')}")
     return "done", f"{p['signal']} stable at {fmt_quantity(r.read_signal(p['signal']), units)}"
-
-
-# ---- rate table and stepper bench -----------------------------------------------------------------
-def table_rate(r: "Runner", step: Step) -> tuple[str, str]:
-    p = step.params
-    drv = r.lab.instruments[p["instrument"]]
-    actual = drv.set_rate(p["rate"], p.get("accel"))
-    sig = f"{p['instrument']}.rate"
-    if not r.wait_until(MOTION_TIMEOUT_S, lambda: abs(r.read_signal(sig, fresh=True) - actual) <= RATE_TOLERANCE_DPS):
-        raise StepAbort(f"{p['instrument']}: table did not reach {actual:g} deg/s within {MOTION_TIMEOUT_S:g} s")
-    if p.get("settle"):
-        r.wait_until(p["settle"])
-    return "done", f"{actual:+g} deg/s"
-
-
-def _wait_target(r: "Runner", inst: str, what: str) -> None:
-    def reached() -> bool:
-        s = r.lab.instruments[inst].read()  # looked up each time: a link fault may reopen the driver
-        if s["any_fault"]:
-            raise StepAbort(f"{inst}: drive fault during {what}")
-        return bool(s["target_reached"] and s["tilt_target_reached"])
-
-    if not r.wait_until(MOTION_TIMEOUT_S, reached):
-        raise StepAbort(f"{inst}: {what} not finished within {MOTION_TIMEOUT_S:g} s")
-
-
-def table_move(r: "Runner", step: Step) -> tuple[str, str]:
-    p = step.params
-    r.lab.instruments[p["instrument"]].move_to(p["angle"], p.get("rate"))
-    _wait_target(r, p["instrument"], f"move to {p['angle']:g} deg")
-    return "done", f"at {r.read_signal(p['instrument'] + '.angle', fresh=True):.3f} deg"
-
-
-def table_tilt(r: "Runner", step: Step) -> tuple[str, str]:
-    p = step.params
-    r.lab.instruments[p["instrument"]].tilt(p["angle"])
-    _wait_target(r, p["instrument"], f"tilt to {p['angle']:g} deg")
-    return "done", f"tilted {r.read_signal(p['instrument'] + '.tilt', fresh=True):.3f} deg"
-
-
-def table_stop(r: "Runner", step: Step) -> tuple[str, str]:
-    inst = step.params["instrument"]
-    r.lab.instruments[inst].stop()
-    if not r.wait_until(MOTION_TIMEOUT_S, lambda: abs(r.read_signal(f"{inst}.rate", fresh=True)) <= RATE_TOLERANCE_DPS):
-        raise StepAbort(f"{inst}: table did not stop within {MOTION_TIMEOUT_S:g} s")
-    return "done", "stopped"
-
-
-def bench_rate(r: "Runner", step: Step) -> tuple[str, str]:
-    p = step.params
-    drv = r.lab.instruments[p["instrument"]]
-    if p["rate"] == 0:
-        drv.stop()
-        msg = "stopped"
-    else:
-        actual = drv.set_rate(p["rate"])
-        drv.run()
-        msg = f"{actual:+.4f} deg/s"
-    if p.get("settle"):
-        r.wait_until(p["settle"])
-    return "done", msg
 
 
 def mount(r: "Runner", step: Step) -> tuple[str, str]:
@@ -384,10 +254,20 @@ def _signal_units(r: "Runner", signal: str) -> str:
         return ""
 
 
-HANDLERS = {
-    "comment": comment, "prompt": prompt, "power": power, "configure": configure, "wait": wait, "record": record, "bit": bit,
-    "set_temperature": set_temperature, "pump_down": pump_down, "vent": vent, "wait_until_stable": wait_until_stable,
-    "table_rate": table_rate, "table_move": table_move, "table_tilt": table_tilt, "table_stop": table_stop,
-    "bench_rate": bench_rate, "mount": mount, "vibrate": vibrate, "check": check,
+CORE_HANDLERS = {
+    "comment": comment, "prompt": prompt, "wait": wait, "record": record, "wait_until_stable": wait_until_stable,
+    "mount": mount, "vibrate": vibrate, "check": check,
 }
-"""Step type -> handler. Every action type of the schema has one (tests check it)."""
+"""Core step type -> handler (:data:`bench.procedure.schema.CORE_STEP_TYPES`)."""
+
+
+def handler(stype: str) -> Callable[["Runner", Step], tuple[str, str]]:
+    """The handler of step type ``stype``: the core's, or the one its kind names (``StepDef.handler``,
+    imported on first use). ``KeyError`` for a type nobody handles."""
+    fn = CORE_HANDLERS.get(stype)
+    if fn is not None:
+        return fn
+    found = kind_step(stype)
+    if found is None:
+        raise KeyError(f"no handler for step type {stype!r}")
+    return registry.load(found[1].handler)

@@ -38,6 +38,8 @@ from bench.errors import InputError
 from bench.model.gyro import GyroModel
 from bench.model.imu_simple import Environment, ImuModelParams, SimpleImuModel
 from bench.model.inputs import SensorInputs
+from bench.sim.board_power import BOOT_S, SUPPLY_RANGE_V, board_current_a
+from bench.sim.power import PowerInput
 from bench.sim.world import World
 from drivers import board_frames
 from drivers.acs_protocol import MOVING_AVG_MAX
@@ -117,7 +119,7 @@ class AcsBoardSim:
         bit_fail_mask: int = 0,
         description: FrameDescription | None = None,
     ):
-        self.description = d = description or builtin_description()
+        self.description = description or builtin_description()
         self.clock = clock
         self.world = world
         self.model = model
@@ -125,6 +127,15 @@ class AcsBoardSim:
         self.baudrate = baudrate
         self.bit_fail_mask = bit_fail_mask
         self._lock = threading.RLock()
+        self.frames_sent = 0
+        self.power = PowerInput(*SUPPLY_RANGE_V, self._draw, boot_s=BOOT_S, on_change=self._power_changed)
+        """The board's power terminals: powered from -inf until a supply is connected
+        (bench/sim/power.py; what it draws: bench/sim/board_power.py)."""
+        self._power_up_state(clock.now())
+
+    def _power_up_state(self, now: float) -> None:
+        """The state the board boots into (its frame description's power-up state)."""
+        d = self.description
         self._decoder = FrameDecoder(d, accept_unknown_types=True)
         self._out = bytearray()
         up = d.power_up
@@ -137,10 +148,28 @@ class AcsBoardSim:
         self._stream_t0 = 0.0
         self._next_k = 0
         if up["streaming"]:
-            self._start_stream(clock.now())
+            self._start_stream(now)
         self._counter = 0
         self._bit_failed = False
-        self.frames_sent = 0
+
+    # ---- power ------------------------------------------------------------------------------
+    def _power_changed(self, t: float, powered: bool) -> None:
+        """Power came (the board boots into its power-up state, after BOOT_S) or went (it stops)."""
+        with self._lock:
+            if math.isfinite(t):
+                self._advance_locked(t)  # what it sent while it had power
+            self._power_up_state(t if math.isfinite(t) else self.clock.now())
+            if powered and self.streaming:
+                self._stream_t0 += BOOT_S
+            if not powered:
+                self.streaming = False
+            if math.isfinite(t):
+                self.world.set_unit_power(t, self.sensor_power)
+
+    def _draw(self, t: float, volts: float, since: float) -> float:
+        with self._lock:
+            return board_current_a(t, volts, since, sensors_on=self.sensor_power, streaming=self.streaming, odr_hz=self.odr_hz,
+                                   frame_bytes=self.description.data_frame_len, baudrate=self.baudrate)
 
     # ---- link -------------------------------------------------------------------------------
     def max_odr_hz(self) -> int:
@@ -154,9 +183,12 @@ class AcsBoardSim:
 
     # ---- host -> board ----------------------------------------------------------------------
     def receive(self, data: bytes) -> None:
-        """Bytes written by the host at the current clock time."""
+        """Bytes written by the host at the current clock time (lost while the board is off or booting)."""
         with self._lock:
-            self._advance_locked(self.clock.now())
+            now = self.clock.now()
+            if not self.power.running(now):
+                return
+            self._advance_locked(now)
             batch = self._decoder.feed(bytes(data))
             if batch.crc_errors:
                 for _ in range(batch.crc_errors):
@@ -227,6 +259,8 @@ class AcsBoardSim:
                 self.streaming = False
             self.sensor_power = on
             self.world.set_unit_power(now, self.sensor_power)
+        if op in ("sensor_power", "start_stream", "stop_stream", "set_odr"):
+            self.power.demand_changed(now)
         elif op == "get_config":
             answer = {"odr_hz": self.odr_hz, "moving_avg_n": self.moving_avg_n, "streaming": int(self.streaming),
                       "sensor_power": int(self.sensor_power), "baud": self.baudrate}

@@ -16,18 +16,16 @@ other processes connect to it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable
 
-import numpy as np
-
-from bench.config import InstrumentConfig, LabConfig
-from bench.model.imu_simple import SimpleImuModel
-from bench.sim.acs_board import AcsBoardIdentity, AcsBoardSim
+from bench.kinds import registry
+from bench.sim.power import wire_power
 from bench.sim.registry import SerialDevice
 from bench.sim.serial_faults import FaultySerialLink
-from bench.sim.stepper_bench import StepperBenchSim, bench_eeprom
-from bench.sim.thermocouple_reader import ThermocoupleReaderSim
 from bench.sim.world import World
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.config import LabConfig
 
 LOCALHOST = "127.0.0.1"
 TRANSPORTS = ("inprocess", "socket")
@@ -43,7 +41,9 @@ class SimInstrument:
     (``gauge`` of the chamber, ``slcan`` adapter of a CAN bus). ``url``: the
     driver's URL when its own link is not serial, or wraps it (``modbus-rtu://sim://NAME``). ``url_kwargs``: driver keyword -> sub-name of
     the serial device whose URL it takes. ``endpoints``: (transport, address) lines for people.
-    ``device``: the simulator object with the fault hooks.
+    ``device``: the simulator object with the fault hooks. ``power_input``: what another simulated
+    instrument powers (a unit under test), ``power_outputs``: output name -> what it powers others
+    with (a supply) (:mod:`bench.sim.power`).
     """
 
     name: str
@@ -53,6 +53,8 @@ class SimInstrument:
     url_kwargs: dict[str, str] = field(default_factory=dict)
     endpoints: list[tuple[str, str]] = field(default_factory=list)
     closers: list[Callable[[], None]] = field(default_factory=list)
+    power_input: Any = None
+    power_outputs: dict[str, Any] = field(default_factory=dict)
 
     def close(self) -> None:
         """Stop servers and buses (errors ignored: this runs on the way out)."""
@@ -69,7 +71,40 @@ def serial_url(name: str, sub: str) -> str:
     return f"sim://{name}" if not sub else f"sim://{name}.{sub}"
 
 
-def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, world: World | None = None,
+@dataclass
+class SimContext:
+    """What a kind's simulator builder (``SimSpec.builder``) gets besides the instrument: the lab's
+    ``clock`` and ``world``, whether network servers bind the config's ports (``fixed_ports``,
+    ``bench sim serve``) and whether the dry-run's links are in-process (``inprocess``)."""
+
+    clock: Any
+    world: World
+    fixed_ports: bool = False
+    inprocess: bool = True
+
+    def can_channel(self, base: str, name: str) -> str:
+        """The CAN channel of instrument ``name``'s simulated bus: the config's under ``bench sim
+        serve``, else one private to this lab, so parallel dry-runs never share a bus."""
+        return base if self.fixed_ports else f"{base}-{name}-{id(self.world):x}"
+
+
+def serial_only(name: str, device, seed: int = 0) -> SimInstrument:
+    """A simulated instrument on one serial link (fault hooks on its bytes)."""
+    return SimInstrument(name, device, serial={"": FaultySerialLink(device, seed)})
+
+
+def scpi_socket(out: SimInstrument, device, port: int) -> None:
+    """Also serve ``device`` (a line device answering SCPI) on a raw TCP socket of 127.0.0.1 (VISA
+    ``TCPIP::HOST::PORT::SOCKET``), stopped with the instrument."""
+    from bench.sim.scpi_socket import ScpiSocketServer
+
+    server = ScpiSocketServer(device)
+    bound = server.start(LOCALHOST, port)
+    out.closers.append(server.stop)
+    out.endpoints.append(("tcp", f"{LOCALHOST}:{bound} (SCPI raw socket, VISA TCPIP::{LOCALHOST}::{bound}::SOCKET)"))
+
+
+def build_devices(config: "LabConfig", clock, names: list[str] | None = None, *, world: World | None = None,
                   fixed_ports: bool = False, transport: str = "inprocess") -> dict[str, SimInstrument]:
     """One simulator per instrument (restricted to ``names`` if given), keyed by instrument name,
     all on one world: the stepper bench and the rate table turn the unit, the chamber heats it.
@@ -81,8 +116,8 @@ def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, w
     """
     if transport not in TRANSPORTS:
         raise ValueError(f"dry-run transport {transport!r} is not one of {', '.join(TRANSPORTS)}")
-    inprocess = transport == "inprocess" and not fixed_ports
     world = world or World(config.world)
+    ctx = SimContext(clock, world, fixed_ports, transport == "inprocess" and not fixed_ports)
     out: dict[str, SimInstrument] = {}
     try:
         for name, inst in config.instruments.items():
@@ -90,7 +125,8 @@ def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, w
                 continue
             if inst.sim is None:
                 raise ValueError(f"instrument {name!r} has no 'sim' section in {config.path}; it cannot be simulated")
-            out[name] = _BUILDERS[inst.sim.backend](name, inst, clock, world, fixed_ports, inprocess)
+            out[name] = registry.load(inst.kind.sim.builder)(name, inst, ctx)
+        wire_power(config, out, clock)
     except BaseException:
         for sim in out.values():
             sim.close()
@@ -98,120 +134,3 @@ def build_devices(config: LabConfig, clock, names: list[str] | None = None, *, w
     return out
 
 
-def _serial_only(name: str, device, seed: int = 0) -> SimInstrument:
-    return SimInstrument(name, device, serial={"": FaultySerialLink(device, seed)})
-
-
-def _acs_board(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
-               inprocess: bool) -> SimInstrument:
-    rng = np.random.default_rng(inst.sim.seed)
-    if inst.sim.sensor_spec is not None:
-        from bench.sim.acs_board import board_model_from_spec
-
-        model = board_model_from_spec(inst.sim.sensor_spec, rng)
-    else:
-        model = SimpleImuModel(inst.sim.model, rng)
-    dev = AcsBoardSim(clock, world, model, AcsBoardIdentity(serial=inst.sim.serial), baudrate=inst.baudrate,
-                      bit_fail_mask=inst.sim.bit_fail_mask, description=inst.frames)
-    if inst.sim.transport != "can":
-        return _serial_only(name, dev, inst.sim.seed)
-    from bench.sim.can_serial_bridge import CanSerialBridge
-
-    node = inst.sim.node_id
-    channel = inst.sim.can_channel if fixed_ports else f"{inst.sim.can_channel}-{name}-{id(world):x}"
-    bridge = CanSerialBridge(dev, channel, node=node, seed=inst.sim.seed)
-    return SimInstrument(name, bridge, url=f"can://virtual/{channel}?node={node}", closers=[bridge.close],
-                         endpoints=[("can", f"python-can virtual channel {channel!r} (this process), node {node}")])
-
-
-def _stepper_bench(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
-                   inprocess: bool) -> SimInstrument:
-    world.stage.periodic_errors = tuple(e for e in inst.sim.periodic_errors if e.amplitude)
-    g = inst.sim.grbl
-    eeprom = None if g.eeprom == "blank" else bench_eeprom(g.steps_per_deg, g.max_rate_dps * 60.0, g.acceleration_dps2,
-                                                           g.axis, g.build_info)
-    return _serial_only(name, StepperBenchSim(clock, world.stage, eeprom, axis=g.axis, pins=g.pins,
-                                              dtr_reset_s=g.dtr_reset_s, baudrate=inst.baudrate,
-                                              true_steps_per_deg=g.true_steps_per_deg))
-
-
-def _thermocouple_reader(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
-                         inprocess: bool) -> SimInstrument:
-    from bench.sim.thermocouple_reader import KEYSIGHT_34970A
-
-    dev = ThermocoupleReaderSim(clock, world, inst.sim.serial, tuple(inst.sim.open_channels), inst.baudrate,
-                                spec=KEYSIGHT_34970A, installed_types=inst.tc_type, seed=inst.sim.seed)
-    out = _serial_only(name, dev, inst.sim.seed)
-    if fixed_ports:
-        # other processes (PyVISA, a terminal) also reach it as a 34972A on its LAN SCPI socket
-        from bench.sim.scpi_socket import ScpiSocketServer
-
-        server = ScpiSocketServer(dev)
-        port = server.start(LOCALHOST, inst.sim.scpi_port)
-        out.closers.append(server.stop)
-        out.endpoints.append(("tcp", f"{LOCALHOST}:{port} (SCPI raw socket, VISA TCPIP::{LOCALHOST}::{port}::SOCKET)"))
-    return out
-
-
-def _tvac(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
-          inprocess: bool) -> SimInstrument:
-    from bench.sim.tpg261 import Tpg261Sim
-    from bench.sim.watlow_f4_server import WatlowF4Server
-
-    gauge = Tpg261Sim(clock, world.chamber, baudrate=inst.gauge_baudrate)
-    if inst.sim.transport == "rtu":  # the controller on its own serial link: sim://NAME, or a pty when served
-        from bench.sim.watlow_f4_rtu import WatlowF4RtuSim
-
-        rtu = WatlowF4RtuSim(clock, world.chamber, baudrate=inst.baudrate)
-        scheme = "modbus-rtu+stream" if inprocess else "modbus-rtu"  # the stream client reads without polling the wall clock
-        return SimInstrument(name, rtu, serial={"": FaultySerialLink(rtu, inst.sim.seed), "gauge": FaultySerialLink(gauge, inst.sim.seed)},
-                             url=f"{scheme}://{serial_url(name, '')}", url_kwargs={"gauge_url": "gauge"})
-    if inprocess:  # the same Modbus TCP ADUs on an in-process stream, answered in the caller's thread
-        from bench.sim.watlow_f4_stream import WatlowF4StreamSim
-
-        stream = WatlowF4StreamSim(clock, world.chamber)
-        return SimInstrument(name, stream, serial={"": FaultySerialLink(stream, inst.sim.seed), "gauge": FaultySerialLink(gauge, inst.sim.seed)},
-                             url=f"modbus-tcp+stream://{serial_url(name, '')}", url_kwargs={"gauge_url": "gauge"},
-                             endpoints=[("modbus-tcp", f"in-process stream {serial_url(name, '')} (unit id 1)")])
-    server = WatlowF4Server(clock, world.chamber)
-    port = server.start(LOCALHOST, inst.sim.modbus_port if fixed_ports else 0)
-    url = f"modbus-tcp://{LOCALHOST}:{port}"
-    return SimInstrument(name, server, serial={"gauge": FaultySerialLink(gauge, inst.sim.seed)}, url=url, url_kwargs={"gauge_url": "gauge"},
-                         endpoints=[("modbus-tcp", f"{LOCALHOST}:{port} (unit id 1)")], closers=[server.stop])
-
-
-def _rate_table(name: str, inst: InstrumentConfig, clock, world: World, fixed_ports: bool,
-                inprocess: bool) -> SimInstrument:
-    from bench.sim.rate_table import RateTableSim
-
-    node = inst.sim.node_id
-    if inst.sim.periodic_errors:
-        world.table.rotation.eccentricity = inst.sim.periodic_errors[0]  # the rotation axis's worm gear
-    # in-process labs get a channel of their own, so parallel dry-runs never share a bus
-    channel = inst.sim.can_channel if fixed_ports else f"{inst.sim.can_channel}-{name}-{id(world):x}"
-    if inprocess:  # frames delivered in the sender's thread: no notifier threads, no queues
-        from drivers.can_transport import SyncBus
-
-        bus, interface, what = SyncBus(channel), "sync", "synchronous in-process CAN channel"
-    else:
-        bus, interface, what = channel, "virtual", "python-can virtual channel"
-    sim = RateTableSim(clock, world.table.rotation, world.table.tilt, node_id=node, serial=inst.sim.serial, bus=bus)
-    out = SimInstrument(name, sim, url=f"can://{interface}/{channel}?node={node}", closers=[sim.close],
-                        endpoints=[("can", f"{what} {channel!r} (this process), nodes {node} rotation, {node + 1} tilt")])
-    if fixed_ports:
-        # other processes reach the bus through a simulated SLCAN USB-CAN adapter on a pseudo-terminal
-        from bench.sim.slcan_gateway import SlcanGatewaySim
-
-        gateway = SlcanGatewaySim(channel)
-        out.serial["slcan"] = FaultySerialLink(gateway, inst.sim.seed)
-        out.closers.insert(0, gateway.close)
-    return out
-
-
-_BUILDERS = {
-    "acs_board": _acs_board,
-    "stepper_bench": _stepper_bench,
-    "thermocouple_reader": _thermocouple_reader,
-    "tvac": _tvac,
-    "rate_table": _rate_table,
-}

@@ -7,7 +7,7 @@ simulator sampling any interval afterwards sees exactly the motion commanded in 
 simulator may replace the planned future (a cancel, a new block) but never the past.
 
 The true motion differs from the commanded one by errors periodic in the stage angle
-(:class:`bench.sim.table_motion.Eccentricity`, applied in turn): the worm gear's eccentricity
+(:class:`bench.model.eccentricity.Eccentricity`, applied in turn): the worm gear's eccentricity
 (ESTCube-2 section 4.3: "a periodical noise ... at every speed, the noise had a different period")
 with one period per worm turn, and the microstep ripple with one period per microstep. Both are
 off by default: the seed gives no amplitude (``docs/stepper-bench.md``).
@@ -19,7 +19,7 @@ import threading
 
 import numpy as np
 
-from bench.sim.table_motion import Eccentricity
+from bench.model.eccentricity import Eccentricity
 
 
 class RotatingStage:

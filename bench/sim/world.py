@@ -18,33 +18,17 @@ Defaults (``docs/simulation.md``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
-
 import numpy as np
 
 from bench.model.geometry import mount_matrix
 from bench.model.imu_simple import Environment, earth_rate_dps
-from bench.params import dataclass_from_dict
-from bench.sim.chamber import Chamber, ChamberParams
+from bench.model.world import WorldParams
+from bench.sim.chamber import Chamber
 from bench.sim.stage import RotatingStage
 from bench.sim.table_motion import TableMotion
 from bench.model.vibration import VibrationSchedule
 
-
-@dataclass
-class WorldParams:
-    """Parameters of the world (units in the names)."""
-
-    ambient_temp_c: float = 20.0
-    latitude_deg: float = 36.4
-    field_ut: list[float] = field(default_factory=lambda: [23.6, 0.0, -42.0])
-    chamber: ChamberParams = field(default_factory=ChamberParams)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "WorldParams":
-        """Build from a mapping; unknown keys raise ``KeyError`` naming them."""
-        return dataclass_from_dict(cls, data)
+__all__ = ["World", "WorldParams"]
 
 
 class World:

@@ -230,28 +230,31 @@ def limit_states(runner: Any) -> list[dict[str, Any]]:
     within them ± the envelope margin: ``ok`` or ``beyond``, with the reading); the other limits bound
     what the steps command and were checked on every step before the run started (``checked``).
     Read from another thread: values only, never an instrument."""
-    from bench.procedure.limits import LIMIT_UNITS, effective_limits
+    from bench.kinds import registry
+    from bench.procedure.limits import effective_limits, limit_units
     from bench.quantity_format import fmt_quantity, fmt_range
-    from bench.runner.monitor import CHAMBER_SAFETY_MARGIN_C, ENVELOPE_COLUMNS, outside_envelope
+    from bench.runner.monitor import outside_envelope
 
     out = []
     for inst, kind in runner.lab.kinds.items():
+        k = registry.get(kind)
+        env = k.envelope if k is not None else None
         limits = effective_limits(kind, runner.lab.config_limits.get(inst, {}), runner.procedure.limits.get(inst, {}))
         for quantity, (lo, hi, source) in limits.items():
-            units = LIMIT_UNITS.get(kind, {}).get(quantity, "").replace("delta_", "")
+            units = limit_units(kind).get(quantity, "").replace("delta_", "")
             item: dict[str, Any] = {"instrument": inst, "quantity": quantity, "min": lo, "max": hi, "source": source,
                                     "units": units, "value": None, "state": "checked", "limits_text": fmt_range(lo, hi, units),
                                     "value_text": ""}
-            if kind == "tvac" and quantity == "set_point":
-                item["watch"] = f"air and mount temperature within ± {CHAMBER_SAFETY_MARGIN_C:g} degC"
-                values = [v for v in (runner.monitor.last.get(inst, {}).get(c) for c in ENVELOPE_COLUMNS) if v is not None and v == v]
+            if env is not None and quantity == env.limit:
+                item["watch"] = f"{env.watch or ', '.join(env.columns)} within ± {env.margin:g} {env.units}"
+                values = [v for v in (runner.monitor.last.get(inst, {}).get(c) for c in env.columns) if v is not None and v == v]
                 if not values:
                     item["state"] = "no reading"
                 else:
                     worst = max(values, key=lambda v: max((lo - v) if lo is not None else 0.0, (v - hi) if hi is not None else 0.0))
                     item["value"] = float(worst)
-                    item["value_text"] = fmt_quantity(float(worst), "degC")
-                    item["state"] = "beyond" if outside_envelope(worst, lo, hi) else "ok"
+                    item["value_text"] = fmt_quantity(float(worst), env.units)
+                    item["state"] = "beyond" if outside_envelope(worst, lo, hi, env.margin) else "ok"
             out.append(item)
     return out
 
