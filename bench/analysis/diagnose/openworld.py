@@ -21,9 +21,8 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
-from scipy import stats
 
-from bench.analysis.allan import overlapping_adev
+from bench.analysis.allan import chi2_ppf, overlapping_adev
 from bench.analysis.diagnose.data import Prepared
 from bench.analysis.diagnose.engine import State, Term, build_state, compare, evaluate, material, term_df
 from bench.analysis.diagnose.terms import CANDIDATES, FAMILY_PROBE, PROBES
@@ -79,7 +78,7 @@ def allan_excess(r: np.ndarray, fs: float) -> Excess:
     taus, adev = al.taus_s, al.adev
     n2 = float(np.min((adev[:4] ** 2) * taus[:4])) if taus.size else 0.0
     white = np.sqrt(n2 / taus)
-    limit = stats.chi2.ppf(1.0 - EXCESS_P, al.edf) / al.edf
+    limit = chi2_ppf(1.0 - EXCESS_P, al.edf) / al.edf
     ratio = (adev / np.maximum(white, 1e-300)) ** 2
     clusters = al.n_samples / al.m
     sig = (ratio > np.maximum(limit, EXCESS_MIN)) & (clusters >= MIN_CLUSTERS)
