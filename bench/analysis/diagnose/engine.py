@@ -36,7 +36,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from bench.analysis.progress import each
-from bench.analysis.diagnose.cv import CVFit, SparseHat, augment, block_sums, cv_fit
+from bench.analysis.diagnose.cv import CVFit, SparseHat, augment, block_sums, cv_fit, fold_grams
 from bench.analysis.diagnose.data import Blocks, Prepared
 from bench.analysis.diagnose.terms import AXES, CANDIDATES, Built, Candidate, Context, lagged_temp
 
@@ -376,8 +376,9 @@ def _fit_candidate(p: Prepared, state: State, built: Built, cache: dict | None =
         st = state.axes[a]
         raw_z, raw_o = built.cols.get(a), built.offsets.get(a)
         key = (a, id(raw_z), id(raw_o))
+        folded = None
         if cache is not None and key in cache and cache[key][0] is raw_z and cache[key][1] is raw_o:
-            _, _, A, S, Z, Pz = cache[key]
+            _, _, A, S, Z, Pz, folded = cache[key]
             pz = built.penalty.get(a)
             if pz is not None:  # same columns, another penalty (a grid of smoothness)
                 sc = _col_scale(Z)
@@ -388,9 +389,10 @@ def _fit_candidate(p: Prepared, state: State, built: Built, cache: dict | None =
             A = augment(st.A, Xb, yb, p.blocks, Zs, None if o is None else st.y - o)
             S = _sums_with(p, st, Zs, None if o is None else st.y - o)
             if cache is not None and raw_z is not None and built.penalty:
-                cache[key] = (raw_z, raw_o, A, S, Z, Pz)
+                folded = fold_grams(A, p.blocks)
+                cache[key] = (raw_z, raw_o, A, S, Z, Pz, folded)
         P = _blockdiag(st.P, st.X.shape[1], Pz, 0 if Z is None else Z.shape[1])
-        fits[a] = cv_fit(A, P, p.blocks, need_df=False, S=S, gls=bool(p.whiten))
+        fits[a] = cv_fit(A, P, p.blocks, need_df=False, S=S, gls=bool(p.whiten), folded=folded)
     return fits
 
 
