@@ -53,28 +53,31 @@ def ensure_env() -> None:
     STAMP.write_text(want + "\n")
 
 
-TEST_TOOLS = {"mbpoll": "mbpoll", "pg_ctlcluster": "postgresql", "chromium": "chromium"}
+TEST_TOOLS = {"mbpoll": "mbpoll", "pg_ctl": "postgresql", "chromium": "chromium"}
 """Debian packages of third-party programs the tests use when present (command -> package): protocol
-clients, and the PostgreSQL server the catalogue tests start a throwaway cluster of (its initdb and
-pg_ctl live in /usr/lib/postgresql/*/bin, off PATH; pg_ctlcluster comes with the server), and the
-browser the web station's tests drive with Playwright (tests/browser.py)."""
+clients, the PostgreSQL server the catalogue tests start a throwaway cluster of (its initdb and
+pg_ctl live in /usr/lib/postgresql/*/bin, off PATH), and the browser the web station's tests drive
+with Playwright (tests/browser.py). Looked for as the tests look for them (tests/programs.py: PATH,
+then the sbin and libexec places)."""
 
 
 def ensure_test_tools() -> None:
     """Install missing third-party programs with apt-get where allowed (root on Debian); the tests that
     need one skip with the reason printed otherwise."""
-    import shutil
+    from tests.programs import find_program, with_system_dirs
 
-    missing = [pkg for cmd, pkg in TEST_TOOLS.items() if shutil.which(cmd) is None]
-    if not missing or shutil.which("apt-get") is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
+    missing = [pkg for cmd, pkg in TEST_TOOLS.items() if find_program(cmd) is None]
+    apt_get = find_program("apt-get")
+    if not missing or apt_get is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
         return
     _say(f"installing {', '.join(missing)} with apt-get (third-party programs the tests use)")
-    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    # dpkg refuses to work without ldconfig and start-stop-daemon on PATH (/usr/sbin, /sbin)
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive", PATH=with_system_dirs(os.environ.get("PATH")))
     try:
-        ok = subprocess.run(["apt-get", "install", "-y", "-q", *missing], env=env, capture_output=True, timeout=300).returncode == 0
+        ok = subprocess.run([apt_get, "install", "-y", "-q", *missing], env=env, capture_output=True, timeout=300).returncode == 0
         if not ok:
-            subprocess.run(["apt-get", "update", "-q"], env=env, capture_output=True, timeout=300)
-            ok = subprocess.run(["apt-get", "install", "-y", "-q", *missing], env=env, capture_output=True, timeout=300).returncode == 0
+            subprocess.run([apt_get, "update", "-q"], env=env, capture_output=True, timeout=300)
+            ok = subprocess.run([apt_get, "install", "-y", "-q", *missing], env=env, capture_output=True, timeout=300).returncode == 0
     except (OSError, subprocess.TimeoutExpired):
         ok = False
     if not ok:

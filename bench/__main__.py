@@ -14,9 +14,14 @@ def entry() -> int:
 
     guard = StartupSignals.install()
     try:
-        from bench.cli import main
+        from bench.cli import main, stdout_gone
 
-        return main()
+        try:
+            code = main()
+            sys.stdout.flush()  # here, not at exit: a reader that went away is handled like one during the command
+        except BrokenPipeError:
+            return stdout_gone()
+        return code
     except StoppedDuringStartup as exc:
         print(f"bench: {exc}", file=sys.stderr)
         return 1  # bench.errors.EXIT_FAILED, not imported: this may be the import that was stopped

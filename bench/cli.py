@@ -18,7 +18,9 @@ from bench import __version__
 from bench.cli_common import Parser as _Parser
 from bench.cli_common import add_force, epilog, quantity
 from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, KNOWN_ERRORS, InputError, InputErrors
+from bench.quantity_format import fmt_hms
 from bench.startup_signals import STOP_SIGNALS, StartupSignals, StoppedDuringStartup
+from bench.terminal_text import printable
 
 if TYPE_CHECKING:  # imported where used: `bench --help` and `bench --version` stay light (docs/benchmarks.md)
     from rich.console import Console
@@ -84,7 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "(default: real instruments unless the config says 'mode: sim')")
     r.add_argument("--realtime", action="store_true", help="with --sim: run at wall-clock pace (default: virtual time, hours in seconds)")
     r.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run files go (default: runs/)")
-    r.add_argument("--operator", default=None, help="operator name recorded in the run file (default: login name)")
+    r.add_argument("--operator", metavar="NAME", default=None,
+                   help="who runs it, recorded in the run file with where it came from (default: the login name; one of the "
+                        "lab config's 'operators:' when it lists them)")
     r.add_argument("-p", "--param", action="append", metavar="NAME=VALUE", help=PARAM_HELP)
     r.add_argument("--answers", type=Path, default=None,
                    help="YAML file answering the procedure's operator prompts (id: yes) (default: ask on the terminal)")
@@ -221,6 +225,9 @@ def build_parser() -> argparse.ArgumentParser:
     from bench.cli_web import add_serve_parser
 
     add_serve_parser(sub)
+    from bench.cli_unit import add_unit_parser
+
+    add_unit_parser(sub)
 
     sk = sub.add_parser(
         "soak", help="run the procedure library back to back on the simulated lab with random faults",
@@ -318,6 +325,10 @@ def main(argv: list[str] | None = None) -> int:
             from bench.cli_web import cmd_serve
 
             return cmd_serve(args, console)
+        if args.command == "unit":
+            from bench.cli_unit import cmd_unit
+
+            return cmd_unit(args, console)
         if args.command in ("runs", "catalog"):
             from bench.cli_catalog import cmd_catalog
 
@@ -342,19 +353,35 @@ def main(argv: list[str] | None = None) -> int:
     except KNOWN_ERRORS as exc:
         if args.debug:
             raise
-        err.print(f"bench: {exc}", markup=False, soft_wrap=True)
+        err.print(f"bench: {printable(exc)}", markup=False, soft_wrap=True)
         return EXIT_FAILED
     except StoppedDuringStartup as exc:
-        err.print(f"bench: {exc}", markup=False, soft_wrap=True)
+        err.print(f"bench: {printable(exc)}", markup=False, soft_wrap=True)
         return EXIT_FAILED
     except KeyboardInterrupt:
         err.print("bench: interrupted")
         return EXIT_FAILED
+    except BrokenPipeError:
+        return stdout_gone()
     except Exception as exc:  # noqa: BLE001 - last line of defence: one line, not a traceback
         if args.debug:
             raise
-        err.print(f"bench: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)", markup=False, soft_wrap=True)
+        err.print(f"bench: internal error: {type(exc).__name__}: {printable(exc)} (run with --debug for the traceback)", markup=False,
+                  soft_wrap=True)
         return EXIT_FAILED
+
+
+def stdout_gone() -> int:
+    """The reader of stdout went away (``bench runs --json | head -c 10``): stop quietly with exit
+    code 1, as ``cat`` stops, instead of an internal error; stdout is pointed at /dev/null so that
+    Python's own flush at exit does not complain about the pipe again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no real stdout (a test's capture)
+        pass
+    return EXIT_FAILED
 
 
 # ---- run --------------------------------------------------------------------------------------
@@ -379,6 +406,9 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     args.sim = args.sim or config.mode == "sim"
     if args.realtime and not args.sim:
         raise InputError("--realtime only applies to simulated runs; add --sim", None, "--realtime")
+    from bench import operators
+
+    who = operators.resolve(args.operator, config.operators, origin=operators.cli_origin(), allowed_at=config.operators_location)
     operator = Operator.from_file(args.answers, Operator.terminal()) if args.answers else Operator(None, Operator.terminal())
     unanswerable = [s for s in procedure.steps if (s.type == "prompt" or (s.type == "vibrate" and not args.sim))
                     and not operator.can_answer(s.params.get("id") or s.name, args.sim)]
@@ -405,12 +435,17 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
         fault_spec = parse_fault_spec(args.inject_faults)
         # the faults' targets checked against this procedure's instruments before a run file exists
         plan_faults(fault_spec, {n: config.instruments[n].driver for n in procedure.instruments}, procedure.estimated_duration_s())
+    if not args.sim:  # an absent port or CAN interface: said before anything is created, naming the instrument
+        from bench.lab import check_ports
+
+        check_ports(config, procedure.instruments)
     check_destination(args.runs_dir, run_file_bytes(procedure))
 
+    progress = RichProgress(console, dry_run=args.sim)
     session = start_run(procedure, config, procedure_path=args.procedure, config_path=args.config, runs_dir=args.runs_dir,
-                        sim=args.sim, realtime=args.realtime, operator=operator, progress=RichProgress(console),
-                        operator_name=args.operator, fault_spec=fault_spec, identity=identity, overdue=overdue,
-                        accept_overdue=args.accept_overdue_calibration, catalog=run_catalog(args.catalog, config),
+                        sim=args.sim, realtime=args.realtime, operator=operator, progress=progress,
+                        operator_name=who.name, operator_origin=who.origin, fault_spec=fault_spec, identity=identity,
+                        overdue=overdue, accept_overdue=args.accept_overdue_calibration, catalog=run_catalog(args.catalog, config),
                         startup=StartupSignals.current)
     runner, lab, recorder = session.runner, session.lab, session.recorder
     state = {"signals": 0}
@@ -419,6 +454,7 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     # terminal library in the middle of rendering (or of a lazy import) and break it.
     def on_pause(signum: int, _frame) -> None:
         runner.toggle_pause()
+        progress.paused = runner.paused
         runner.notices.append(f"[bold yellow]{'pause' if runner.paused else 'resume'} requested ({signal.Signals(signum).name}); "
                               f"{'send it again to resume' if runner.paused else 'continuing'}[/]")
 
@@ -452,7 +488,7 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
         session.catalog.run_ended()  # the closed file's row: status, verdict, hash (a failure only warns)
     for text in runner.notices:
         console.print(text)
-    _print_summary(console, result, recorder.path, args.sim and not args.realtime)
+    _print_summary(console, result, recorder.path, args.sim and not args.realtime, "sim" if args.sim else "hardware")
     _print_next_commands(console, recorder.path, sensor_data=any(result.rows.values()))
     code = EXIT_OK if result.ok else EXIT_FAILED
     if args.json:
@@ -462,33 +498,45 @@ def cmd_run(args: argparse.Namespace, console: Console) -> int:
     return code
 
 
-def _print_summary(console: Console, result, path: Path, virtual: bool) -> None:
+def _print_summary(console: Console, result, path: Path, virtual: bool, mode: str) -> None:
+    """The end of ``bench run``: steps, streams, checks (values and limits with units), times, the
+    outcome; a run not on real instruments says so first and last (:mod:`bench.run_mode`)."""
+    from rich.markup import escape
     from rich.text import Text
 
+    from bench.inspect_view import OUTCOME_STYLE, banner_text, check_rows
+    from bench.record.checks import check_from_result
+    from bench.run_mode import is_evidence, mode_word
     from bench.termtable import fit_tables
 
-    colours = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "recorded": "blue"}
-    rows = [[str(o.index + 1), o.name, o.type, Text(o.outcome, colours.get(o.outcome, "white")), o.message] for o in result.outcomes]
+    evidence = is_evidence(mode)
+    rows = [[str(o.index + 1), o.name, o.type, Text(o.outcome, OUTCOME_STYLE.get(o.outcome, "white")), o.message] for o in result.outcomes]
     for t in fit_tables(["#", "step", "type", "outcome", "detail"], rows, console.width, title="Steps", prose=[1, 4]):
         console.print(t)
     for name, rows in result.rows.items():
         st = result.stream_stats.get(name, {})
-        console.print(f"stream {name}: {rows} rows; link: {st.get('crc_errors', 0)} CRC errors, {st.get('dropped_frames', 0)} dropped frames, {st.get('garbage_bytes', 0)} garbage bytes")
+        faults = [f"{st.get(k, 0):,} {what}" for k, what in (("crc_errors", "CRC errors"), ("dropped_frames", "dropped frames"),
+                                                               ("garbage_bytes", "garbage bytes")) if st.get(k, 0)]
+        console.print(f"stream {name}: {rows} rows; link: {', '.join(faults) if faults else 'clean'}", markup=False, highlight=False)
     if result.checks:
-        rows = [[c["name"], c["signal"], c["statistic"], c["window"], "-" if c["value"] is None else f"{c['value']:.6g}", c["units"],
-                 c["limits"], Text(c["outcome"], colours.get(c["outcome"], "white"))] for c in result.as_json()["checks"]]
-        for ct in fit_tables(["check", "signal", "statistic", "window", "value", "units", "limits", "outcome"], rows, console.width,
-                             title="Checks", prose=[0]):
+        headers, rows = check_rows([check_from_result(c, int(c.get("step", -1)), str(c["outcome"])) for c in result.checks],
+                                   evidence=evidence)
+        for ct in fit_tables(headers, rows, console.width, title="Checks", prose=[0, 2]):
             console.print(ct)
     speed = f", {result.run_time_s / max(result.wall_time_s, 1e-9):.0f}x real time" if virtual else ""
-    console.print(f"run time {result.run_time_s:.1f} s in {result.wall_time_s:.2f} s wall{speed}")
-    console.print(f"run file: {path}")
+    console.print(f"run time {fmt_hms(result.run_time_s)} ({result.run_time_s:.1f} s) in {result.wall_time_s:.2f} s wall{speed}")
+    console.print(f"run file: {path}", markup=False, highlight=False)
+    loud = banner_text(mode)
     if result.status == "aborted":
-        console.print(f"[bold red]ABORTED[/]: {result.abort_reason}")
+        console.print(f"[bold red]ABORTED[/]: {escape(result.abort_reason)}")
     elif result.failed_steps:
-        console.print(f"[bold red]FAILED[/]: {len(result.failed_steps)} step(s) failed: {', '.join(o.name for o in result.failed_steps)}")
-    else:
+        console.print(f"[bold red]FAILED[/]: {len(result.failed_steps)} step(s) failed: {escape(', '.join(o.name for o in result.failed_steps))}")
+    elif evidence:
         console.print(f"[bold green]COMPLETED[/]: all steps done; {result.verdict}")
+    else:
+        console.print(f"[bold]COMPLETED ({mode_word(mode)})[/]: all steps done; {result.verdict}")
+    if loud is not None:
+        console.print(loud)
 
 
 def next_commands(path: Path, *, sensor_data: bool) -> list[tuple[str, str]]:
@@ -538,6 +586,7 @@ def cmd_inspect(args: argparse.Namespace, console: Console) -> int:
 
         print(json.dumps(summary_json(summary, max_events=args.events), indent=2))
         return EXIT_OK
+    # texts of the file are data: render_summary shows their escape sequences and line breaks, never acts on them
     render_summary(summary, console, max_events=args.events, traffic=args.traffic)
     return EXIT_OK
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from bench.cli_common import Parser, epilog
 from bench.errors import EXIT_FAILED, EXIT_OK
+from bench.terminal_text import printable
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -38,6 +39,7 @@ def add_catalog_parsers(sub: Any) -> None:
         description="One row per run file from the catalogue (default RUNS_DIR/catalog.sqlite). Text filters match "
                     "exactly; '*' matches any characters.",
         epilog=epilog("bench runs --unit 12 --vacuum-below 1e-4Torr", "bench runs --procedure 'thermal_*' --verdict failed --since 7d",
+                      "bench runs --mode real --verdict passed      # acceptance evidence only: no dry-runs",
                       "bench runs --unit 12 --json", "bench runs --catalog postgresql://bench@labdb/bench --station tvac-1",
                       ok="the rows were listed (none may match)", failed="the catalogue could not be read (server unreachable, "
                       "locked beyond its timeout, a newer schema)", bad="a bad filter value (--since: ...), no catalogue"))
@@ -68,6 +70,7 @@ def add_run_filters(r: Any) -> None:
     r.add_argument("--procedure", metavar="NAME", help="procedure name")
     r.add_argument("--status", metavar="S", help="running | completed | aborted | failed | crashed")
     r.add_argument("--verdict", metavar="V", help="passed | failed | no-verdict | incomplete")
+    r.add_argument("--mode", metavar="M", help="real (hardware) | dry-run (sim) | replay | imported: a dry-run is never acceptance evidence")
     r.add_argument("--station", metavar="NAME", help="test station")
     r.add_argument("--since", metavar="DATE|DURATION", help="runs started at or after a UTC date/time (2026-11-23, 2026-11-23T08:00Z) or within a duration (7d, 12 h)")
     r.add_argument("--vacuum-below", metavar="PRESSURE", help="runs whose lowest monitored pressure was at or below this (1e-4 Torr; a bare number is Torr)")
@@ -89,7 +92,9 @@ def cmd_runs(args: argparse.Namespace, console: "Console") -> int:
     if args.json:
         print(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in rows], indent=2))
         return EXIT_OK
-    render_runs(rows, console)
+    from bench.terminal_text import printable_data
+
+    render_runs(printable_data(rows), console)  # texts of the run files are data: escapes shown, never acted on
     return EXIT_OK
 
 
@@ -101,7 +106,8 @@ def query_runs(args: argparse.Namespace) -> list[dict[str, Any]]:
     f = q.RunFilter(  # every value is checked before the catalogue is opened
         unit=q.parse_text(args.unit, "--unit"), part=q.parse_text(args.part, "--part"),
         procedure=q.parse_text(args.procedure, "--procedure"), station=q.parse_text(args.station, "--station"),
-        status=q.parse_status(args.status), verdict=q.parse_verdict(args.verdict), since=q.parse_since(args.since),
+        status=q.parse_status(args.status), verdict=q.parse_verdict(args.verdict), mode=q.parse_mode(getattr(args, "mode", None)),
+        since=q.parse_since(args.since),
         vacuum_below_torr=q.parse_pressure(args.vacuum_below), limit=q.parse_limit(args.limit),
     )
     url = resolve_url(args.catalog, args.runs_dir)
@@ -119,42 +125,104 @@ def _utc(t: datetime | None, fmt: str = "%Y-%m-%dT%H:%M:%SZ") -> str:
 
 def render_runs(rows: list[dict[str, Any]], console: "Console") -> None:
     """The rows as a table as wide as the terminal allows (80 columns fit; units in the headers):
-    every column at its content's width; a procedure name (or unit serial) longer than the room
-    left continues on the next line, whole (never cut to "…", as ``bench/termtable.py``); then one
-    note line per failed check or reason, referring to the row by its number."""
+    every column at its content's width, the mode of each run (``real``, ``DRY-RUN``, ``REPLAY``:
+    :mod:`bench.run_mode`) beside its verdict, numbers through :mod:`bench.quantity_format`
+    (``760``, ``1.2e-05``, never ``7.6e+02``). The environment columns (lowest pressure, temperature
+    range) are left out when no row has them, and move to the note lines when the procedure names
+    would not fit beside them; a procedure name (or unit serial) longer than the room left continues
+    on the next line, whole (never cut to "…", as ``bench/termtable.py``). Then one note line per
+    failed check or reason, referring to the row by its number, and the count of runs per mode and
+    verdict (a dry-run's pass is never counted with real ones)."""
     from rich.table import Table
     from rich.text import Text
+
+    from bench.quantity_format import fmt_number, fmt_quantity, fmt_range
+    from bench.run_mode import is_evidence, mode_word
 
     if not rows:
         console.print("no catalogued run matches")
         return
     colours = {"passed": "green", "failed": "red", "incomplete": "yellow", "crashed": "red", "aborted": "red"}
-    headers = ["#", "start UTC", "unit", "procedure", "status", "verdict", "p min\nTorr", "T degC\nmin..max"]
+    base = ["#", "start UTC", "unit", "procedure", "mode", "status", "verdict"]
+    env_heads = ["p min\nTorr", "T degC\nmin..max"]
     cells: list[list[str]] = []
-    notes: list[str] = []
+    env: list[list[str]] = []
+    notes: dict[int, list[str]] = {}
     for i, r in enumerate(rows, 1):
         p, lo, hi = r["min_pressure_torr"], r["temp_min_degc"], r["temp_max_degc"]
         cells.append([str(i), _utc(r["started_utc"], "%Y-%m-%d %H:%M"), r["unit_serial"] or "-", r["procedure_name"],
-                      r["status"], r["verdict"] or "-", f"{p:.1e}" if p is not None else "-",
-                      f"{lo:.0f}..{hi:.0f}" if lo is not None and hi is not None else "-"])
+                      mode_word(r.get("mode")), r["status"], r["verdict"] or "-"])
+        env.append([fmt_number(p, 2) if p is not None else "-",
+                    f"{fmt_number(lo, 3)}..{fmt_number(hi, 3)}" if lo is not None and hi is not None else "-"])
         if r["first_failed_check"]:
-            notes.append(f"{i:>3} first failed: {r['first_failed_check']}")
+            notes.setdefault(i, []).append(f"first failed: {r['first_failed_check']}")
         if r["reason"]:
-            notes.append(f"{i:>3} {r['status']}: {r['reason']}")
-    widths = [max(max(len(h) for h in head.split("\n")), *(len(c[k]) for c in cells)) for k, head in enumerate(headers)]
-    widths[2] = min(widths[2], UNIT_WIDTH)
+            notes.setdefault(i, []).append(f"{r['status']}: {r['reason']}")
+    has_env = any(e != ["-", "-"] for e in env)
+
+    def widths_for(headers: list[str], table: list[list[str]]) -> list[int]:
+        w = [max(max(len(h) for h in head.split("\n")), *(len(c[k]) for c in table)) for k, head in enumerate(headers)]
+        w[2] = min(w[2], UNIT_WIDTH)
+        return w
+
+    headers = base + (env_heads if has_env else [])
+    table = [c + e for c, e in zip(cells, env)] if has_env else cells
+    widths = widths_for(headers, table)
     room = console.width - (sum(widths) - widths[3]) - (len(headers) - 1)  # one space between columns
+    longest = max(len(c[3]) for c in cells)
+    if has_env and room < longest:  # the names first: the environment goes to the notes
+        for i, (e, r) in enumerate(zip(env, rows), 1):
+            if e != ["-", "-"]:
+                parts = []
+                if r["min_pressure_torr"] is not None:
+                    parts.append(f"p min {fmt_quantity(r['min_pressure_torr'], 'Torr', 2)}")
+                if r["temp_min_degc"] is not None and r["temp_max_degc"] is not None:
+                    parts.append(f"T {fmt_range(r['temp_min_degc'], r['temp_max_degc'], 'degC', 3)}")
+                notes.setdefault(i, []).insert(0, ", ".join(parts))
+        headers, table = base, cells
+        widths = widths_for(headers, table)
+        room = console.width - (sum(widths) - widths[3]) - (len(headers) - 1)
     widths[3] = max(min(widths[3], room), MIN_PROCEDURE_WIDTH)
     t = Table(box=None, padding=(0, 1, 0, 0), pad_edge=False, header_style="bold")
     for k, head in enumerate(headers):
         folds = k in (2, 3)  # unit, procedure
-        t.add_column(head, justify="right" if k in (0, 6, 7) else "left", no_wrap=not folds, overflow="fold", width=widths[k])
-    for c in cells:
-        t.add_row(*c[:4], Text(c[4], style=colours.get(c[4], "")), Text(c[5], style=colours.get(c[5], "")), *c[6:])
+        t.add_column(head, justify="right" if k == 0 or k >= len(base) else "left", no_wrap=not folds, overflow="fold", width=widths[k])
+    for c, r in zip(table, rows):
+        evidence = is_evidence(r.get("mode"))
+        mode = Text(c[4], style="bold green" if evidence else "bold black on yellow")
+        verdict = Text(c[6], style=colours.get(c[6], "") if evidence else "")  # a dry-run's pass is not green
+        t.add_row(*c[:4], mode, Text(c[5], style=colours.get(c[5], "")), verdict, *c[7:])
     console.print(t)
-    for n in notes:
-        console.print(Text(n), soft_wrap=False)
-    console.print(f"{len(rows)} run(s)")
+    for i, lines in notes.items():
+        for n in lines:
+            console.print(Text(f"{i:>3} {n}"), soft_wrap=False)
+    for line in runs_summary(rows):
+        console.print(line, markup=False, highlight=False)
+
+
+def runs_summary(rows: list[dict[str, Any]]) -> list[str]:
+    """The catalogue's verdict summary of ``rows``, counted per mode so a simulated pass never adds
+    to the real ones: ``5 run(s)``, then one line per mode (``  real     2: 1 passed, 1 failed``,
+    ``  DRY-RUN  3: 3 passed``), and a last line when some are not acceptance evidence."""
+    from bench.catalog.row import VERDICTS
+    from bench.run_mode import MODES, is_evidence, mode_word
+
+    by_mode: dict[str, dict[str, int]] = {}
+    for r in rows:
+        counts = by_mode.setdefault(r.get("mode") or "", {})
+        v = r["verdict"] or r["status"]
+        counts[v] = counts.get(v, 0) + 1
+    order = [m for m in MODES if m in by_mode] + sorted(m for m in by_mode if m not in MODES)
+    rank = {v: k for k, v in enumerate(VERDICTS)}
+    width = max(len(mode_word(m)) for m in order)
+    lines = [f"{len(rows)} run(s):"]
+    for m in order:
+        counts = sorted(by_mode[m].items(), key=lambda x: (rank.get(x[0], 99), x[0]))
+        lines.append(f"  {mode_word(m):<{width}} {sum(by_mode[m].values()):>3}: " + ", ".join(f"{n} {v}" for v, n in counts))
+    not_evidence = [mode_word(m) for m in order if not is_evidence(m)]
+    if not_evidence:
+        lines.append(f"{', '.join(not_evidence)}: not acceptance evidence (--mode real lists real runs only)")
+    return lines
 
 
 # ---- bench catalog rebuild ----------------------------------------------------------------------
@@ -189,10 +257,13 @@ def cmd_rebuild(args: argparse.Namespace, console: "Console") -> int:
             report = rebuild(cat, args.dir, recursive=args.recursive, on_file=line_progress)
         total_rows = cat.count()
     for path, reason in report.unreadable:
-        err.print(reason, markup=False, soft_wrap=True)
+        err.print(printable(reason), markup=False, soft_wrap=True)
+    for path, reason in report.skipped:
+        err.print(f"bench: warning: {reason}", markup=False, soft_wrap=True)
     console.print(
         f"catalogued {report.catalogued} of {report.files} run file(s) from {args.dir} in {report.wall_s:.2f} s "
-        f"({report.files_per_s:.1f} files/s); {len(report.unreadable)} unreadable; {display_url(url)} holds {total_rows} run(s)",
+        f"({report.files_per_s:.1f} files/s); {len(report.unreadable)} unreadable"
+        f"{f', {len(report.skipped)} link(s) out of the directory skipped' if report.skipped else ''}; {display_url(url)} holds {total_rows} run(s)",
         markup=False, highlight=False, soft_wrap=True)
     return EXIT_FAILED if report.unreadable else EXIT_OK
 

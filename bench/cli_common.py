@@ -22,6 +22,7 @@ from typing import Iterable
 
 from bench.errors import EXIT_BAD_INPUT, InputError
 from bench.outputs import exists_error as _exists
+from bench.outputs import refuse_special
 
 DEBUG_HELP = "show the traceback of an error instead of one line (accepted before or after the command)"
 
@@ -62,13 +63,23 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+LAB_CONFIG = "configs/lab.yaml"
+"""The lab config the examples name: each lab makes its own (it is not in the repository)."""
+LAB_CONFIG_NOTE = (f"{LAB_CONFIG} is your lab's config: make it with 'bench lab init -o {LAB_CONFIG}' (an example of a real "
+                   "lab: configs/lab.example.yaml); configs/sim.yaml is the simulated lab every dry-run (--sim) can use.")
+"""Said under every ``--help`` whose examples name :data:`LAB_CONFIG`."""
+
+
 def epilog(*examples: str, ok: str, failed: str = INTERNAL, bad: str = BAD_INPUT, notes: str = "") -> str:
     """The end of a command's ``--help``: optional notes, its exit codes, one example per line.
 
     ``ok``, ``failed`` and ``bad`` say what exit codes 0, 1 and 2 mean for this command. Notes and
-    exit codes are wrapped to the terminal; examples never are.
+    exit codes are wrapped to the terminal; examples never are. Examples that name
+    :data:`LAB_CONFIG` (which each lab makes) get :data:`LAB_CONFIG_NOTE` under them.
     """
     width = max(60, min(shutil.get_terminal_size().columns, 120) - 2)
+    if any(LAB_CONFIG in e for e in examples) and "bench lab init" not in notes:
+        notes = f"{notes} {LAB_CONFIG_NOTE}".strip()
     lines = textwrap.wrap(notes, width) + [""] if notes else []
     lines.append("exit codes:")
     for code, text in (("0", ok), ("1", failed), ("2", bad)):
@@ -107,10 +118,9 @@ def check_output(path: Path | None, option: str, *, force: bool = False, inputs:
     for src in inputs:
         if src is not None and _same_file(path, src):
             raise InputError(f"{path} is also the input; write the output to another file", None, option)
+    refuse_special(path, option)
     if os.path.lexists(path) and not force:
         raise _exists(path, option)
-    if os.path.isdir(path):
-        raise InputError(f"{path} is a directory; give a file name", None, option)
     parent = Path(path).parent
     if not parent.is_dir():
         raise InputError(f"directory {parent} does not exist; create it or write elsewhere", None, option)

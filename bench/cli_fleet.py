@@ -29,7 +29,7 @@ PROGRESS_LINE_S = 5.0
 """Seconds of wall time between progress lines when stderr is not a terminal."""
 DEFAULT_OUT = Path("runs") / "fleet"
 """Where a fleet's outputs go unless --out says otherwise."""
-_FILTERS = ("unit", "part", "procedure", "status", "verdict", "station", "since", "vacuum_below", "limit")
+_FILTERS = ("unit", "part", "procedure", "status", "verdict", "mode", "station", "since", "vacuum_below", "limit")
 """The ``bench runs`` filters (argparse destinations) that only mean something with --query."""
 
 _WHAT = {

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bench.cli_common import epilog
+from bench.cli_common import epilog, quantity
 from bench.errors import EXIT_OK, InputError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -40,6 +40,15 @@ def add_serve_parser(sub: argparse._SubParsersAction) -> None:
     sv.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this computer only)")
     sv.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0: any free port, printed)")
     sv.add_argument("--token", default=None, help=f"control token (default: ${TOKEN_ENV}, else a new random one, printed)")
+    sv.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                    help="another name the station answers to in the Host header (repeatable; default: the --host address, "
+                         "localhost and the loopback addresses; a name other computers reach it by, e.g. bench-station.lab)")
+    sv.add_argument("--request-timeout", default="10 s", metavar="DURATION",
+                    help="longest time for a request's headers to arrive, and as long again for its body; an incomplete "
+                         "request is then answered 408 and closed (default 10 s)")
+    sv.add_argument("--trusted-proxy", action="append", default=[], metavar="ADDRESS",
+                    help="a reverse proxy in front of the station whose X-Forwarded-For is believed for the origin recorded "
+                         "with controls (repeatable; default: none, the origin is the connection's address)")
 
 
 def _bind(host: str, port: int):
@@ -64,9 +73,41 @@ def _bind(host: str, port: int):
     return sock
 
 
+def _host_name(value: str, option: str) -> str:
+    """A name for ``--allow-host``: a DNS name or an address, without a port or a scheme."""
+    import ipaddress
+    import re
+
+    v = value.strip().strip("[]").rstrip(".").lower()
+    try:
+        ipaddress.ip_address(v)
+        return v
+    except ValueError:
+        pass
+    if not re.fullmatch(r"[a-z0-9](?:[a-z0-9-]{0,61}[a-z0-9])?(?:\.[a-z0-9](?:[a-z0-9-]{0,61}[a-z0-9])?)*", v) or len(v) > 253:
+        raise InputError(f"expected a host name such as bench-station.lab or an address, got {value!r}", None, option)
+    return v
+
+
+def _proxy_address(value: str) -> str:
+    """An address or network for ``--trusted-proxy`` (``10.0.0.5``, ``10.0.0.0/24``)."""
+    import ipaddress
+
+    try:
+        return str(ipaddress.ip_network(value.strip(), strict=False) if "/" in value else ipaddress.ip_address(value.strip()))
+    except ValueError:
+        raise InputError(f"expected an IP address or network such as 10.0.0.5 or 10.0.0.0/24, got {value!r}", None,
+                         "--trusted-proxy") from None
+
+
 def cmd_serve(args: argparse.Namespace, console: Console) -> int:
     if not 0 <= args.port <= 65535:
         raise InputError(f"expected a TCP port 0..65535, got {args.port}", None, "--port")
+    allow_hosts = tuple(_host_name(h, "--allow-host") for h in args.allow_host)
+    request_timeout_s = quantity(args.request_timeout, "s", "--request-timeout")
+    if not 0.1 <= request_timeout_s <= 600:
+        raise InputError(f"expected 0.1 s to 600 s, got {args.request_timeout!r}", None, "--request-timeout")
+    trusted = tuple(_proxy_address(a) for a in args.trusted_proxy)
     token = args.token if args.token is not None else os.environ.get(TOKEN_ENV) or None
     if token is not None and (len(token) < MIN_TOKEN_CHARS or not token.isprintable() or " " in token):
         raise InputError(f"the token must be at least {MIN_TOKEN_CHARS} printable characters without spaces", None,
@@ -77,11 +118,13 @@ def cmd_serve(args: argparse.Namespace, console: Console) -> int:
     if args.runs_dir.exists() and not args.runs_dir.is_dir():
         raise InputError(f"{args.runs_dir}: not a directory", None, "--runs-dir")
     catalog = args.catalog
+    operators: tuple[str, ...] = ()
     if args.config is not None:
         from bench.cli_catalog import run_catalog
         from bench.config import load_config
 
-        catalog = run_catalog(args.catalog, load_config(args.config))
+        lab = load_config(args.config)
+        catalog, operators = run_catalog(args.catalog, lab), lab.operators
     elif catalog:
         from bench.catalog.store import resolve_url
 
@@ -95,12 +138,12 @@ def cmd_serve(args: argparse.Namespace, console: Console) -> int:
 
     import uvicorn
 
-    from bench.record.skeleton import login_name
     from bench.web.app import Station, create_app
+    from bench.web.server import server_config
 
     station = Station(runs_dir=args.runs_dir.resolve(), library=args.procedures.resolve(), token=token,
                       config=args.config.resolve() if args.config else None,
-                      sim_config=sim_config.resolve() if sim_config.is_file() else None, catalog=catalog, operator_name=login_name())
+                      sim_config=sim_config.resolve() if sim_config.is_file() else None, catalog=catalog, operators=operators)
     host, port = sock.getsockname()[:2]
     shown = f"[{host}]" if ":" in host else host
     print(f"bench serve: http://{shown}:{port}/", flush=True)
@@ -108,9 +151,10 @@ def cmd_serve(args: argparse.Namespace, console: Console) -> int:
     if not station.library.is_dir():
         print(f"bench: warning: no procedure library at {args.procedures}: runs cannot be started from the page", file=sys.stderr, flush=True)
     if args.host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"bench: warning: listening on {args.host}: other computers can read the runs (controls need the token)",
+        print(f"bench: warning: listening on {args.host}: other computers can read the runs (controls need the token); "
+              f"it answers to its addresses, localhost{''.join(', ' + h for h in allow_hosts)} (--allow-host NAME adds a name)",
               file=sys.stderr, flush=True)
-    server = uvicorn.Server(uvicorn.Config(create_app(station), log_level="warning", access_log=False, lifespan="on",
-                                           timeout_graceful_shutdown=5))
+    app = create_app(station, bind_host=host, allow_hosts=(args.host, *allow_hosts))
+    server = uvicorn.Server(server_config(app, trusted_proxies=trusted, request_timeout_s=request_timeout_s))
     server.run(sockets=[sock])
     return EXIT_OK

@@ -163,6 +163,10 @@ class LabConfig:
     ``""``: ``RUNS_DIR/catalog.sqlite``. Checked by ``bench run`` (``catalog_location`` for messages)."""
     catalog_location: Location | None = None
     sources: dict[str, str] = field(default_factory=dict)
+    operators: tuple[str, ...] = ()
+    """The lab's operators (config ``operators:``): when given, a run's operator must be one of them
+    (``bench run --operator``, the web station's start form; :mod:`bench.operators`)."""
+    operators_location: Location | None = None
     """Texts of the files the config named and :func:`load_config` read (sensor models,
     calibration files): resolved absolute path -> text (and the same text under the absolute name
     the config gives when a symbolic link made them differ). ``bench run`` keeps them in the run
@@ -208,6 +212,8 @@ def load_config(path: str | Path, *, recorded: bool = False) -> LabConfig:
         errors.append(InputError(f"expected 'hardware' or 'sim', got {mode!r}", top.map["mode"].location, "mode"))
     station = _identity_text(top, "station", errors)
     catalog = top.get("catalog", str, default="")
+    operators = _operators(top.node_at("operators"), errors)
+    top.used.add("operators")
     world = _world(top.node_at("world"), errors)
     instruments: dict[str, InstrumentConfig] = {}
     sources: dict[str, str] = {}
@@ -238,7 +244,29 @@ def load_config(path: str | Path, *, recorded: bool = False) -> LabConfig:
     if errors:
         raise InputErrors(errors)
     return LabConfig(name, src.path, src.text, world, instruments, flush, mode, station, catalog,
-                     top.map["catalog"].location if catalog else None, sources)
+                     top.map["catalog"].location if catalog else None, sources, operators,
+                     top.map["operators"].location if operators else None)
+
+
+def _operators(node: Node | None, errors: list[InputError]) -> tuple[str, ...]:
+    """The optional ``operators:`` list: names (printable, at most 64 characters), no duplicates."""
+    if node is None:
+        return ()
+    if not isinstance(node.value, list) or not node.value:
+        errors.append(InputError("expected a list of operator names such as [alice, bob]", node.location, "operators"))
+        return ()
+    names: list[str] = []
+    for item in node.value:
+        try:
+            name = check_identity_text(item.value, item.location, "operators")
+        except InputError as exc:
+            errors.append(exc)
+            continue
+        if name.lower() in {n.lower() for n in names}:
+            errors.append(InputError(f"{name!r} is listed twice", item.location, "operators"))
+            continue
+        names.append(name)
+    return tuple(names)
 
 
 INSTRUMENT_NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_\-]{0,63}")

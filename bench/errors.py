@@ -9,6 +9,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench.terminal_text import printable
 from drivers.errors import DeviceFault, InstrumentError, InstrumentTimeout, NotConfigured, ProtocolError
 
 EXIT_OK = 0
@@ -49,7 +50,9 @@ class Location:
 class InputError(BenchError):
     """Bad input (procedure, config, CSV, run file, command line): exit code 2.
 
-    ``str()`` gives one line: ``file:line:column: field: message``.
+    ``str()`` gives one line: ``file:line:column: field: message``, with control characters (a
+    newline in a file name, an escape sequence in a run file's text) shown as escapes
+    (:func:`bench.terminal_text.printable`), so a message is always exactly one line.
     """
 
     def __init__(self, message: str, location: Location | None = None, field: str | None = None):
@@ -65,7 +68,7 @@ class InputError(BenchError):
         if self.field:
             parts.append(self.field)
         parts.append(self.message)
-        return ": ".join(parts)
+        return printable(": ".join(parts))
 
 
 def finite_number(value: object, where: Location | None, field: str | None) -> float:

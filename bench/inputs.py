@@ -33,6 +33,7 @@ YAML_LIMIT_BYTES = 1 << 20
 """Largest procedure, config, sensor model, calibration file, vibration profile or answers file (1 MiB)."""
 CSV_LIMIT_BYTES = 256 << 20
 """Largest measured-data CSV file (256 MiB)."""
+NOT_REGULAR = "not a regular file (a directory, device or FIFO)"
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 """The checkout holding the ``bench`` package and the shipped ``procedures/`` and ``configs/``."""
@@ -56,25 +57,8 @@ def read_input_bytes(path: str | Path, *, limit_bytes: int, what: str,
     def refuse(problem: str) -> InputError:
         return InputError(f"cannot read {what}: {problem}", loc, field)
 
+    fd = _open_regular(p, what, loc, field, limit_bytes)
     try:
-        st = os.stat(p)
-    except FileNotFoundError:
-        raise InputError(f"{what} not found", loc, field) from None
-    except ValueError:  # a NUL byte in the name
-        raise refuse("expected a file name without NUL characters") from None
-    except OSError as exc:
-        raise refuse(exc.strerror or type(exc).__name__) from None
-    if not stat.S_ISREG(st.st_mode):
-        raise refuse("not a regular file (a directory, device or FIFO)")
-    if st.st_size > limit_bytes:
-        raise refuse(f"the file is larger than {_size_text(limit_bytes)}")
-    try:
-        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    except OSError as exc:
-        raise refuse(exc.strerror or type(exc).__name__) from None
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):  # replaced by something else since the stat
-            raise refuse("not a regular file (a directory, device or FIFO)")
         chunks: list[bytes] = []
         left = limit_bytes + 1
         while left > 0:
@@ -91,6 +75,52 @@ def read_input_bytes(path: str | Path, *, limit_bytes: int, what: str,
     if len(data) > limit_bytes:  # grew while being read
         raise refuse(f"the file is larger than {_size_text(limit_bytes)}")
     return data
+
+
+def _open_regular(p: Path, what: str, loc: Location, field: str | None, limit_bytes: int | None = None) -> int:
+    """A read-only descriptor of the regular file ``p`` (at most ``limit_bytes`` long), opened so
+    that a FIFO never blocks: ``os.stat`` first, then ``O_NONBLOCK`` and ``fstat`` (a FIFO or
+    device swapped in meanwhile is refused too). :class:`InputError` otherwise."""
+
+    def refuse(problem: str) -> InputError:
+        return InputError(f"cannot read {what}: {problem}", loc, field)
+
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise InputError(f"{what} not found", loc, field) from None
+    except ValueError:  # a NUL byte in the name
+        raise refuse("expected a file name without NUL characters") from None
+    except OSError as exc:
+        raise refuse(exc.strerror or type(exc).__name__) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise refuse(NOT_REGULAR)
+    if limit_bytes is not None and st.st_size > limit_bytes:
+        raise refuse(f"the file is larger than {_size_text(limit_bytes)}")
+    try:
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise refuse(exc.strerror or type(exc).__name__) from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):  # replaced by something else since the stat
+        os.close(fd)
+        raise refuse(NOT_REGULAR)
+    return fd
+
+
+def read_head(path: str | Path, n: int, *, what: str = "data file", location: Location | None = None,
+              field: str | None = None) -> bytes:
+    """The first ``n`` bytes of the regular file ``path`` (fewer if it is shorter), read without ever
+    blocking: a FIFO, device or directory is :class:`InputError` (``cannot read data file: not a
+    regular file ...``), as :func:`read_input_bytes` refuses them. For the format checks of data
+    files (``bench diagnose``, ``calibrate``, ``import``: HDF5 signature, netCDF-3 magic)."""
+    p = Path(path)
+    fd = _open_regular(p, what, location if location is not None else Location(p), field)
+    try:
+        return os.read(fd, n)
+    except OSError as exc:
+        raise InputError(f"cannot read {what}: {exc.strerror or type(exc).__name__}", location or Location(p), field) from None
+    finally:
+        os.close(fd)
 
 
 def confined_path(name: str, *, base: Path, roots: Sequence[Path], what: str, where: str,

@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 from bench.clock import Clock, VirtualClock, WallClock
 from bench.config import InstrumentConfig, LabConfig
-from bench.errors import InputError
+from bench.errors import BenchError, InputError, InputErrors
 from bench.sim import registry
 from bench.sim.factory import TRANSPORTS, SimInstrument, build_devices, serial_url
 from bench.sim.world import World
@@ -113,11 +113,41 @@ def driver_kwargs(inst: InstrumentConfig) -> dict[str, Any]:
     return {}
 
 
+class InstrumentOpenError(BenchError):
+    """An instrument of a real lab could not be opened or identified: the message names it, says
+    what was seen and what to do, as ``bench instruments check`` does (``instrument``, ``cause``)."""
+
+    def __init__(self, instrument: str, problem: str, hint: str, cause: BaseException):
+        super().__init__(f"{instrument}: {problem}" + (f" → {hint}" if hint else ""))
+        self.instrument, self.problem, self.hint, self.cause = instrument, problem, hint, cause
+
+
+def check_ports(config: LabConfig, names: list[str]) -> None:
+    """Before a real run creates anything: every serial device and CAN interface the instruments
+    ``names`` use must be there and usable (``bench instruments check``'s pre-flight). Raises
+    :class:`InputErrors` located at each instrument's entry of the config, naming it, with the hint."""
+    from bench.instruments_check import preflight
+
+    errors = []
+    for name in names:
+        inst = config.instruments.get(name)
+        if inst is None:
+            continue
+        seen = preflight(inst)
+        if seen is not None:
+            problem, hint = seen
+            errors.append(InputError(f"{problem} → {hint}", inst.location, name))
+    if errors:
+        raise InputErrors(errors)
+
+
 def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, on_traffic: TrafficSink | None = None) -> Lab:
     """Open the instruments ``names`` of ``config``.
 
     ``sim``: simulators behind the drivers, on a virtual clock unless ``realtime``. Raises
-    :class:`InputError` for an instrument missing from the config or without a ``sim`` section.
+    :class:`InputError` for an instrument missing from the config or without a ``sim`` section,
+    :class:`InstrumentOpenError` (naming the instrument, with the hint) for a real instrument that
+    cannot be opened or identified.
     """
     for name in names:
         if name not in config.instruments:
@@ -161,7 +191,15 @@ def open_lab(config: LabConfig, names: list[str], *, sim: bool, realtime: bool, 
             opener = (lambda c, url, i, h, kw: (lambda: c.open(url, baudrate=i.baudrate, timeout_s=i.timeout_s, on_traffic=h, **kw)))(
                 cls, ports[name], inst, hook, kwargs[name])
             lab.openers[name] = opener
-            instruments[name] = opener()
+            try:
+                instruments[name] = opener()
+            except Exception as exc:
+                if sim:
+                    raise
+                from bench.instruments_check import diagnose_failure
+
+                problem, hint = diagnose_failure(inst, exc)
+                raise InstrumentOpenError(name, problem, hint, exc) from exc
     except Exception:
         lab.close()
         raise

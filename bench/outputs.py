@@ -1,9 +1,15 @@
 """Writing an output file so that no reader ever sees half of it: a hidden sibling moved into place
-(``bench report -o``, ``bench calibrate -o``, the fleet's outputs)."""
+(``bench report -o``, ``bench calibrate -o``, the fleet's outputs).
+
+Only a regular file is ever replaced: an output named as a device (``/dev/full``, ``/dev/null``), a
+FIFO, a socket, a directory or a symbolic link is refused (:func:`refuse_special`), with
+``--force`` too; before, ``-o /dev/full --force`` replaced the device node with an HTML file.
+"""
 
 from __future__ import annotations
 
 import os
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -19,10 +25,12 @@ def output_file(path: Path, option: str, *, force: bool = False) -> Iterator[Pat
     overwritten (:class:`InputError`, ``option`` names the option). The writer may refuse an
     existing file: the sibling never exists beforehand."""
     path = Path(path)
+    refuse_special(path, option)
     tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
     try:
         yield tmp
         if os.path.exists(tmp):  # else the writer wrote nothing (e.g. refused)
+            refuse_special(path, option)  # also one made while the output was written
             _move_into_place(tmp, path, option, force)
     finally:
         if os.path.lexists(tmp):
@@ -44,6 +52,25 @@ def _move_into_place(tmp: Path, path: Path, option: str, force: bool) -> None:
             os.rename(tmp, path)
     except OSError as exc:
         raise InputError(f"cannot write {path}: {exc.strerror or exc}", None, option) from None
+
+
+_KINDS = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+          (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory"), (stat.S_ISLNK, "a symbolic link"))
+
+
+def refuse_special(path: Path, option: str) -> None:
+    """:class:`InputError` (naming ``option``) when ``path`` exists and is not a regular file: an
+    output only ever creates or replaces a regular file (``--force`` included)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except (OSError, ValueError) as exc:  # ValueError: a NUL in the name
+        raise InputError(f"cannot write {path}: {getattr(exc, 'strerror', None) or exc}", None, option) from None
+    if stat.S_ISREG(mode):
+        return
+    kind = next((k for test, k in _KINDS if test(mode)), "not a regular file")
+    raise InputError(f"{path} is {kind}: an output only creates or replaces a regular file (--force too); name a file", None, option)
 
 
 def exists_error(path: Path, option: str) -> InputError:

@@ -130,6 +130,21 @@ def to_units(value: Any, units: str, location: Location | None = None, field: st
     return result
 
 
+def quantity_units(value: Any) -> str | None:
+    """The units of ``value`` when it is text written as a quantity with units (``-29 degC``,
+    ``5 %``, ``0.4 deg/s``), else None (a bare number, other text)."""
+    if not isinstance(value, str) or len(value) > 200 or not _quantity_text().fullmatch(value):
+        return None
+    try:
+        q = registry().Quantity(value.strip())
+    except Exception:  # noqa: BLE001 - pint's parser raises many types
+        return None
+    if not isinstance(q, pint.Quantity) or q.unitless and "%" not in value and "percent" not in value:
+        return None
+    written = re.sub(r"^\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*", "", value).strip()
+    return written or str(q.units)  # as the file writes it: degC, not degree_Celsius
+
+
 def _short(exc: Exception) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__

@@ -32,6 +32,8 @@ from rich.table import Table
 from rich.text import Text
 
 from bench.errors import EXIT_OK, InputError
+from bench.quantity_format import fmt_hms, fmt_number, fmt_quantity, fmt_reading, is_status_column, unit_text
+from bench.run_mode import banner, mode_word
 from bench.record import layout
 from bench.record.reader import (
     STALE_AFTER_S,
@@ -50,7 +52,6 @@ from bench.record.reader import (
     _units,
     event_datasets,
     event_row,
-    format_run_time,
     read_heartbeat,
     step_outcome,
 )
@@ -76,6 +77,8 @@ _LIVE = (layout.STATUS_RUNNING, layout.STATUS_WAITING)
 HIDDEN_COLUMNS = ("counter", "board_time")
 """Bookkeeping columns of the sensor board; read but not listed as readings (rows and rate are)."""
 SPARK_CHARS = "▁▂▃▄▅▆▇█"
+MAX_STATES = 4
+"""Distinct status words listed for a window (more are counted)."""
 
 _EVENT_BLOCK = 16384  # events read per block when scanning for steps
 _BLOB_SPAN = 4 * 1024 * 1024  # blob bytes read at once when the wanted messages lie this close together
@@ -112,7 +115,12 @@ class SignalState:
     """One scalar signal: a scalar column, or one component (x, y, z) of a vector column.
 
     ``value`` is the last row; ``trend`` the mean per time bin over the trend window (NaN for an
-    empty bin), ``trend_min``/``trend_max`` its extremes (NaN if it has no finite value)."""
+    empty bin), ``trend_min``/``trend_max`` its extremes (NaN if it has no finite value), which
+    scale the sparkline. ``low``/``high`` are the smallest and largest readings themselves: over
+    the rows read for the trend (every row of the window up to ``MAX_TREND_ROWS``, else every k-th)
+    and the latest one, so the current value always lies within them (bin means would not).
+    A status word (:func:`bench.quantity_format.is_status_column`) is a bit field: it is never
+    averaged; ``states`` lists the distinct words seen in the window instead."""
 
     column: str
     component: str
@@ -122,6 +130,9 @@ class SignalState:
     trend: np.ndarray
     trend_min: float
     trend_max: float
+    low: float = math.nan
+    high: float = math.nan
+    states: tuple[float, ...] = ()
 
     @property
     def label(self) -> str:
@@ -472,13 +483,22 @@ def _read_stream_tail(key: str, g: h5py.Group, limit: int, window_s: float, poin
         vals = np.asarray(ds[i0:n:step], dtype=np.float64).reshape(len(t_w), -1)
         flat = last.astype(np.float64).reshape(-1)
         labels = ["x", "y", "z"] if flat.size == 3 and ds.ndim == 2 else ([""] if flat.size == 1 else [f"[{i}]" for i in range(flat.size)])
+        status = is_status_column(c)
         for j, label in enumerate(labels):
-            trend = _bin_means(vals[:, j], bins, points)
+            column = vals[:, j]
+            rows_seen = np.append(column[np.isfinite(column)], flat[j] if math.isfinite(flat[j]) else np.empty(0))
+            if status:  # a bit field: the words seen, never a mean
+                words = tuple(float(w) for w in np.unique(rows_seen)[:MAX_STATES + 1])
+                signals.append(SignalState(c, label, units[c], float(flat[j]), True, np.full(points, np.nan), math.nan, math.nan,
+                                           states=words))
+                continue
+            trend = _bin_means(column, bins, points)
             finite = trend[np.isfinite(trend)]
             signals.append(
                 SignalState(
                     c, label, units[c], float(flat[j]), integer, trend,
                     float(finite.min()) if finite.size else math.nan, float(finite.max()) if finite.size else math.nan,
+                    float(rows_seen.min()) if rows_seen.size else math.nan, float(rows_seen.max()) if rows_seen.size else math.nan,
                 )
             )
     return StreamState(key, n, t_last, rate, span, units, latest, signals)
@@ -525,14 +545,9 @@ def sparkline(values: np.ndarray | list[float], lo: float | None = None, hi: flo
 
 
 def format_value(value: float, integer: bool = False, name: str = "") -> str:
-    """A reading as text: integers plain (status words in hex), floats with 5 significant digits."""
-    if not math.isfinite(value):
-        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    if "status" in name and float(value).is_integer() and value >= 0:
-        return f"0x{int(value):04x}"
-    if integer:
-        return str(int(value))
-    return f"{value:.5g}"
+    """A reading as text, without its units (:func:`bench.quantity_format.fmt_reading`): status
+    words in hex, integers whole, other numbers with 5 significant digits."""
+    return fmt_reading(value, "", name, integer=integer, digits=5)
 
 
 _STATUS_STYLE = {
@@ -552,28 +567,71 @@ DEFAULT_WIDTH = 120
 """Width (characters) :func:`build` lays out for when none is given."""
 
 
-def build(state: WatchState, width: int | None = None) -> RenderableType:
+def build(state: WatchState, width: int | None = None, height: int | None = None) -> RenderableType:
     """The view of ``state`` as one rich renderable for a terminal ``width`` characters wide (used
     by :func:`render` and the live display). Every reading keeps its value and units whole; the
-    trend gets the columns left over (min and max go first on a narrow terminal)."""
+    trend gets the columns left over (min and max go first on a narrow terminal).
+
+    With a ``height`` (the terminal's rows, the live display) the view fits it: when the full
+    layout is taller, the compact one shows every stream (vectors and channels of one kind on one
+    row each), then as many of the last events as still fit, one line each; nothing is cut off
+    below the screen."""
     width = width or DEFAULT_WIDTH
+    full = _layout(state, width, compact=False, events=len(state.events), traffic=True)
+    if height is None or _height(full, width) <= height:
+        return full
+    view = full
+    for tight in (False, True):  # tight: no table header, the status and step lines one line each
+        for k in range(len(state.events), -1, -1):
+            view = _layout(state, width, compact=True, events=k, traffic=False, tight=tight)
+            if _height(view, width) <= height:
+                return view
+    return view
+
+
+def _height(renderable: RenderableType, width: int) -> int:
+    """Rows ``renderable`` takes on a terminal ``width`` characters wide."""
+    console = Console(width=width, record=False, file=_NullFile(), color_system=None)
+    return len(console.render_lines(renderable, console.options.update(width=width), pad=False))
+
+
+class _NullFile:
+    def write(self, _text: str) -> int:
+        return 0
+
+    def flush(self) -> None:
+        pass
+
+
+def _layout(state: WatchState, width: int, *, compact: bool, events: int, traffic: bool, tight: bool = False) -> RenderableType:
+    parts: list[RenderableType] = []
+    loud = banner(state.mode)
+    if loud:
+        parts.append(Text(f" {loud} ", style="bold black on yellow"))
     head = Text()
     head.append(f" {state.status.upper()} ", style=_STATUS_STYLE.get(state.status, "bold reverse"))
     head.append(f"  {state.procedure}", style="bold")
-    head.append(f"   run time {format_run_time(state.run_time_s)} ({state.run_time_s:.1f} s)")
+    head.append(f"   run time {fmt_hms(state.run_time_s)}")
+    if not compact:
+        head.append(f" ({state.run_time_s:.1f} s)")
     if state.mode:
-        head.append(f"   mode {state.mode}", style="dim")
+        head.append(f"   mode {mode_word(state.mode)}", style="dim")
     detail = Text(state.status_detail, style={STATUS_STALE: "red", layout.STATUS_WAITING: "bold magenta"}.get(state.status, "dim"))
     if state.abort_reason:
         detail.append(f"   abort reason: {state.abort_reason}", style="red")
-    parts: list[RenderableType] = [head, detail, _step_line(state)]
+    step = _step_line(state)
+    if tight:
+        for line in (head, detail, step):
+            line.no_wrap, line.overflow = True, "ellipsis"
+    parts += [head, detail, step]
     for w in state.warnings:
         parts.append(Text(f"warning: {w}", style="yellow"))
     if state.read_error:
         parts.append(Text(f"refresh failed, showing the last good read: {state.read_error}", style="yellow"))
-    parts.extend(_readings(state, width - PANEL_CHROME))
-    parts.append(_events_table(state))
-    if state.traffic:
+    parts.extend(_readings(state, width - PANEL_CHROME, compact=compact, header=not tight))
+    if events > 0 or not compact:
+        parts.append(_events_table(state, events, one_line=compact, traffic_below=traffic and bool(state.traffic)))
+    if traffic and state.traffic:
         parts.append(Text("instrument traffic (kept for replay): " + "; ".join(t.describe() for t in state.traffic), style="dim"))
     title = f"bench watch [dim]{state.path.name}[/]"
     return Panel(Group(*parts), title=title, title_align="left", box=box.ROUNDED, padding=(0, 1), width=width)
@@ -594,7 +652,7 @@ def _step_line(state: WatchState) -> Text:
         t.append(cur.name or "?", style="bold cyan")
         t.append(f" ({cur.type})" if cur.type else "")
         if cur.t_start_s is not None:
-            t.append(f"  started at {cur.t_start_s:.1f} s, running {max(state.run_time_s - cur.t_start_s, 0.0):.1f} s")
+            t.append(f"  started at {fmt_hms(cur.t_start_s)}, running {fmt_hms(max(state.run_time_s - cur.t_start_s, 0.0))}")
     elif state.steps:
         last = state.steps[-1]
         t.append("last step  " if state.status not in _LIVE else "between steps; last  ", style="bold")
@@ -631,7 +689,8 @@ def resample(values: np.ndarray, points: int) -> np.ndarray:
 
 @dataclass
 class _Row:
-    """One reading as text: label, value, units, min, max, and its trend."""
+    """One reading as text: label, value, units, min, max, and its trend (or, for a status word, the
+    words seen, in ``note``)."""
 
     label: str
     value: str
@@ -639,6 +698,13 @@ class _Row:
     lo: str
     hi: str
     trend: np.ndarray
+    note: str = ""
+
+
+def _states_note(sig: SignalState) -> str:
+    words = [fmt_reading(w, "", sig.column) for w in sig.states[:MAX_STATES]]
+    more = f" (+{len(sig.states) - MAX_STATES} more)" if len(sig.states) > MAX_STATES else ""
+    return ("seen: " + ", ".join(words) + more) if len(words) > 1 else ("steady" if words else "")
 
 
 def _reading_rows(stream: StreamState) -> list[_Row]:
@@ -647,60 +713,101 @@ def _reading_rows(stream: StreamState) -> list[_Row]:
     for sig in stream.signals:
         label = sig.label if sig.column != prev else f"{' ' * len(sig.column)} {sig.component}"
         prev = sig.column
-        lo = format_value(sig.trend_min, sig.integer, sig.column) if math.isfinite(sig.trend_min) else ""
-        hi = format_value(sig.trend_max, sig.integer, sig.column) if math.isfinite(sig.trend_max) else ""
-        rows.append(_Row(label, format_value(sig.value, sig.integer, sig.column), sig.units if sig.units != "1" else "", lo, hi, sig.trend))
+        lo = format_value(sig.low, sig.integer, sig.column) if math.isfinite(sig.low) else ""
+        hi = format_value(sig.high, sig.integer, sig.column) if math.isfinite(sig.high) else ""
+        rows.append(_Row(label, format_value(sig.value, sig.integer, sig.column), unit_text(sig.units), lo, hi, sig.trend,
+                         _states_note(sig) if is_status_column(sig.column) else ""))
     return rows
 
 
-def _readings(state: WatchState, width: int) -> list[RenderableType]:
+_CHANNEL = re.compile(r"^([A-Za-z_]+?)(\d+)$")
+
+
+def _compact_rows(stream: StreamState) -> list[_Row]:
+    """One row per column: a vector's components side by side (``+0.012 -0.004 +5.001``), and the
+    numbered channels of one kind and unit (``ch101..ch104``) together; scalars keep their trend."""
+    rows: list[_Row] = []
+    by_column: dict[str, list[SignalState]] = {}
+    for sig in stream.signals:
+        by_column.setdefault(sig.column, []).append(sig)
+    pending: list[SignalState] = []
+
+    def flush() -> None:
+        if len(pending) >= 2:
+            label = f"{pending[0].column}..{pending[-1].column}"
+            rows.append(_Row(label, " ".join(format_value(s.value, s.integer, s.column) for s in pending), unit_text(pending[0].units),
+                             "", "", np.nanmean([s.trend for s in pending], axis=0) if all(s.trend.size for s in pending) else np.empty(0)))
+        elif pending:
+            rows.extend(_reading_rows(StreamState(stream.key, 0, None, None, 0.0, {}, {}, pending)))
+        pending.clear()
+
+    for column, sigs in by_column.items():
+        m = _CHANNEL.match(column)
+        if len(sigs) == 1 and m and not is_status_column(column):
+            if pending and (_CHANNEL.match(pending[0].column).group(1) != m.group(1) or pending[0].units != sigs[0].units):  # type: ignore[union-attr]
+                flush()
+            pending.append(sigs[0])
+            continue
+        flush()
+        if len(sigs) > 1:
+            values = " ".join(fmt_number(x.value, 4) if not x.integer else format_value(x.value, True, column) for x in sigs)
+            rows.append(_Row(column, values, unit_text(sigs[0].units), "", "", np.empty(0)))
+        else:
+            rows.extend(_reading_rows(StreamState(stream.key, 0, None, None, 0.0, {}, {}, sigs)))
+    flush()
+    return rows
+
+
+def _readings(state: WatchState, width: int, *, compact: bool = False, header: bool = True) -> list[RenderableType]:
     """Per stream a header line (key, rows, rate, last row) and a table of its signals, all tables
     with the same column widths: label, value and units whole, then the trend in what is left of
-    ``width`` (characters), min and max only when the trend still gets :data:`MIN_TREND_CHARS`."""
+    ``width`` (characters), min and max only when the trend still gets :data:`MIN_TREND_CHARS`.
+    ``compact``: one row per column (:func:`_compact_rows`), no blank line between streams;
+    ``header``: the column headings above the first table."""
     if not state.streams:
         return [Text("no streams", style="dim")]
-    by_stream = [(s, _reading_rows(s)) for s in state.streams]
+    by_stream = [(s, _compact_rows(s) if compact else _reading_rows(s)) for s in state.streams]
     rows = [r for _, rs in by_stream for r in rs]
     window = f"{state.trend_window_s / 60:g} min" if state.trend_window_s >= 60 else f"{state.trend_window_s:g} s"
     w = {name: max([len(head)] + [len(getattr(r, name)) for r in rows])
          for name, head in (("label", "reading"), ("value", "value"), ("units", "units"), ("lo", "min"), ("hi", "max"))}
     fixed = w["label"] + w["value"] + w["units"] + 2 * COLUMN_GAP
     trend = width - fixed - COLUMN_GAP - (w["lo"] + w["hi"] + 2 * COLUMN_GAP)
-    extremes = trend >= MIN_TREND_CHARS
+    extremes = trend >= MIN_TREND_CHARS and not compact
     if not extremes:
         trend = width - fixed - COLUMN_GAP
     trend = min(trend, TREND_POINTS)
     trend_head = next((h for h in (f"trend, last {window}", f"last {window}", "trend") if len(h) <= trend), "")
     out: list[RenderableType] = []
     for i, (s, rs) in enumerate(by_stream):
-        head = Text(("\n" if i else "") + s.key, style="bold")
+        head = Text(("\n" if i and not compact else "") + s.key, style="bold")
         head.append(f"  {s.rows:,} rows", style="dim")
         if s.rate_hz is not None:
-            head.append(f"  {s.rate_hz:.4g} Hz", style="dim")
+            head.append(f"  {fmt_quantity(s.rate_hz, 'Hz', 4)}", style="dim")
         if s.rows == 0 or s.t_last_s is None:
             head.append("  no rows yet", style="dim")
         else:
             lag = state.run_time_s - s.t_last_s
-            info = f"  last row {s.t_last_s:.1f} s" + (f", {lag:.1f} s behind" if lag >= 0.05 else "")
-            if s.trend_span_s < 0.95 * state.trend_window_s:
+            info = f"  last row {fmt_hms(s.t_last_s)}" + (f", {fmt_seconds_behind(lag)} behind" if lag >= 0.05 else "")
+            if s.trend_span_s < 0.95 * state.trend_window_s and not compact:
                 info += f", trend {s.trend_span_s:.0f} s"
             head.append(info, style="dim")
         out.append(head)
         if not rs:
             continue
-        t = Table(box=box.SIMPLE_HEAD, show_header=i == 0, padding=(0, 1), pad_edge=False, show_edge=False, expand=False)
+        t = Table(box=box.SIMPLE_HEAD, show_header=i == 0 and header, padding=(0, 1), pad_edge=False, show_edge=False, expand=False)
         t.add_column("reading", no_wrap=True, width=w["label"])
         t.add_column("value", justify="right", no_wrap=True, width=w["value"])
         t.add_column("units", no_wrap=True, width=w["units"])
         if trend > 0:
-            t.add_column(trend_head, no_wrap=True, width=trend)
+            t.add_column(trend_head, no_wrap=True, width=trend, overflow="ellipsis")
         if extremes:
             t.add_column("min", justify="right", no_wrap=True, width=w["lo"])
             t.add_column("max", justify="right", no_wrap=True, width=w["hi"])
         for r in rs:
             cells: list[RenderableType] = [Text(r.label), Text(r.value), Text(r.units, style="dim")]
             if trend > 0:
-                cells.append(Text(sparkline(resample(r.trend, trend)), style="cyan"))
+                cells.append(Text(r.note, style="dim") if r.note else Text(sparkline(resample(r.trend, trend)), style="cyan"))
             if extremes:
                 cells += [Text(r.lo), Text(r.hi)]
             t.add_row(*cells)
@@ -708,18 +815,27 @@ def _readings(state: WatchState, width: int) -> list[RenderableType]:
     return out
 
 
-def _events_table(state: WatchState) -> Table:
-    shown = len(state.events)
-    t = Table(title=f"last {shown} of {state.events_meaningful:,} events (instrument traffic summarised below)", title_justify="left",
-              box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False)
-    t.add_column("t s", justify="right", no_wrap=True)
+def fmt_seconds_behind(lag_s: float) -> str:
+    """How far a stream's last row lags the run: ``0.4 s``, ``1:17:55``."""
+    return f"{lag_s:.1f} s" if lag_s < 60 else fmt_hms(lag_s)
+
+
+def _events_table(state: WatchState, shown: int, one_line: bool = False, traffic_below: bool = True) -> Table:
+    from bench.event_text import event_text
+
+    events = state.events[-shown:] if shown > 0 else []
+    what = "instrument traffic summarised below" if traffic_below else "instrument traffic not listed"
+    t = Table(title=f"last {len(events)} of {state.events_meaningful:,} events ({what})", title_justify="left",
+              box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False, show_header=not one_line)
+    t.add_column("run time", justify="right", no_wrap=True, min_width=max([8] + [len(fmt_hms(e.t_s)) for e in events]))
     t.add_column("kind", no_wrap=True, min_width=len(layout.EVENT_STEP_START))
     t.add_column("source", no_wrap=True, max_width=16, overflow="ellipsis")
     t.add_column("step", justify="right", no_wrap=True)
-    t.add_column("message", overflow="fold", ratio=1)
-    for e in state.events:
+    t.add_column("message", overflow="ellipsis" if one_line else "fold", no_wrap=one_line, ratio=1)
+    for e in events:
         style = "red" if e.kind in ("error", "fault", "abort") else ("bold" if e.kind in (layout.EVENT_STEP_START, layout.EVENT_STEP_END) else "")
-        t.add_row(f"{e.t_s:.1f}", Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "", Text(e.message))
+        t.add_row(fmt_hms(e.t_s), Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "",
+                  Text(event_text(e.kind, e.source, e.message)))
     return t
 
 
@@ -755,7 +871,7 @@ def watch(
             return EXIT_OK
         updates = 1
         failing_since: float | None = None
-        with Live(build(state, console.width), console=console, auto_refresh=False, transient=False) as live:
+        with Live(build(state, console.width, console.height), console=console, auto_refresh=False, transient=False) as live:
             next_at = time.monotonic() + interval_s
             while max_updates is None or updates < max_updates:
                 time.sleep(max(0.0, next_at - time.monotonic()))
@@ -770,7 +886,7 @@ def watch(
                         raise
                     state.read_error = exc.one_line()
                 updates += 1
-                live.update(build(state, console.width), refresh=True)  # the width again: the terminal may have been resized
+                live.update(build(state, console.width, console.height), refresh=True)  # the size again: the terminal may have been resized
                 if state.final:
                     break
     except KeyboardInterrupt:

@@ -8,7 +8,6 @@ missing (``dev.py`` installs chromium with apt-get; playwright is a test depende
 from __future__ import annotations
 
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -18,6 +17,8 @@ from typing import Iterator
 
 import pytest
 
+from tests.programs import find_program
+
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "web-test-token-0123456789"
 START_TIMEOUT_S = 30.0
@@ -25,7 +26,7 @@ START_TIMEOUT_S = 30.0
 
 def chromium_path() -> str:
     """The system chromium, or skip the test saying why."""
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    exe = find_program("chromium") or find_program("chromium-browser")
     if exe is None:
         pytest.skip("chromium is not installed (apt-get install chromium; 'python dev.py' installs it)")
     try:

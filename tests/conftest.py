@@ -1,8 +1,11 @@
-"""Shared fixtures: paths, a simulated board on a virtual clock, CLI runners."""
+"""Shared fixtures: paths, a simulated board on a virtual clock, CLI runners; the suite's time limits
+and the signal dispositions of the tests that deliver stop signals (docs/testing.md)."""
 
 from __future__ import annotations
 
+import faulthandler
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -15,8 +18,86 @@ SIM_CONFIG = ROOT / "configs" / "sim.yaml"
 STARTUP = ROOT / "procedures" / "startup_profile.yaml"
 
 
+HARD_LIMIT_GRACE_S = float(os.environ.get("BENCH_TEST_HARD_LIMIT_GRACE_S", "60"))
+"""Seconds past a test's time limit (pytest-timeout, ``timeout`` in pyproject.toml) after which the
+session ends with every thread's traceback on stderr and exit status 1: the back-stop for a test that
+the limit's SIGALRM cannot interrupt (stuck inside C code, or having replaced SIGALRM's handler).
+``BENCH_TEST_HARD_LIMIT_GRACE_S`` shortens it for tests/test_time_limits.py."""
+
+STOP_SIGNAL_DEFAULTS = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: signal.SIG_DFL,
+                        signal.SIGHUP: signal.SIG_DFL, signal.SIGQUIT: signal.SIG_DFL}
+"""The dispositions a process started from an interactive shell has: Python's KeyboardInterrupt for
+SIGINT, the default action (end the process) for the others. A job a non-interactive shell starts in
+the background has SIGINT and SIGQUIT ignored instead, one started with nohup SIGHUP too; a program
+started from there (``bench watch``, ``bench run``) inherits that until it installs handlers."""
+
+KEEP_INHERITED_SIGNALS_ENV = "BENCH_TEST_KEEP_INHERITED_SIGNALS"
+"""Set to 1, tests marked ``signals`` keep the dispositions pytest inherited: only for
+tests/test_signal_dispositions.py, which shows that they then fail (so the marker is what makes them pass)."""
+
+_stderr_fd: int | None = None
+
+
+def pytest_configure(config) -> None:
+    """Keep a descriptor of the real stderr (output capture is off while plugins are configured) for
+    the back-stop's tracebacks."""
+    global _stderr_fd
+    if _stderr_fd is None:
+        _stderr_fd = os.dup(2)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_timeout_set_timer(item, settings):
+    """Arm the back-stop :data:`HARD_LIMIT_GRACE_S` past the test's limit, then let pytest-timeout set
+    its own timer (None: the next implementation runs). The report so far is flushed first: the
+    back-stop ends the process without flushing."""
+    if sys.__stdout__ is not None:
+        sys.__stdout__.flush()
+    faulthandler.dump_traceback_later(settings.timeout + HARD_LIMIT_GRACE_S, exit=True,
+                                      file=_stderr_fd if _stderr_fd is not None else sys.__stderr__)
+    return None
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_timeout_cancel_timer(item):
+    faulthandler.cancel_dump_traceback_later()
+    return None
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """A test marked ``signals`` runs (set-up and tear-down included) with :data:`STOP_SIGNAL_DEFAULTS`
+    installed, whatever the shell that started pytest gave it; the inherited dispositions come back
+    after it. Processes the test starts get the default actions (handlers reset on exec), so a Python
+    child has its KeyboardInterrupt again."""
+    if item.get_closest_marker("signals") is None or os.environ.get(KEEP_INHERITED_SIGNALS_ENV) == "1":
+        return (yield)
+    inherited = {s: signal.signal(s, handler) for s, handler in STOP_SIGNAL_DEFAULTS.items()}
+    try:
+        return (yield)
+    finally:
+        for s, handler in inherited.items():
+            if handler is not None:  # None: installed outside Python, cannot be put back
+                signal.signal(s, handler)
+
+
+SLOW_TEST_LIMIT_S = 3600
+"""Time limit (s) of a test marked ``slow`` that names none of its own (the every-byte sweep of
+tests/test_fuzz_inputs.py took 19 min on a loaded machine)."""
+REAL_DATA_TEST_LIMIT_S = 900
+"""Time limit (s) of a test that uses :func:`real_log` and names none of its own: the first one may
+download 35 MB (tests/realdata.py waits up to 600 s), and the slowest took 194 s at load 7 on 2 cores."""
+
+
 def pytest_collection_modifyitems(config, items):
-    """Slow soak tests run on demand (BENCH_SLOW=1); otherwise they are deselected (and counted)."""
+    """Longer limits for slow and real-data tests that name none; slow soak tests run on demand
+    (BENCH_SLOW=1), otherwise they are deselected (and counted)."""
+    for item in items:
+        if item.get_closest_marker("timeout") is None:
+            if "slow" in item.keywords:
+                item.add_marker(pytest.mark.timeout(SLOW_TEST_LIMIT_S))
+            elif "real_log" in getattr(item, "fixturenames", ()):
+                item.add_marker(pytest.mark.timeout(REAL_DATA_TEST_LIMIT_S))
     if os.environ.get("BENCH_SLOW") == "1":
         return
     slow = [item for item in items if "slow" in item.keywords]
@@ -83,3 +164,12 @@ def real_log():
             pytest.skip(f"real data unavailable: {exc}")
 
     return get
+
+
+@pytest.fixture(scope="session")
+def unit_runs(tmp_path_factory):
+    """A catalogued runs directory of several units of two part numbers with dry-runs mixed in
+    (tests/unit_runs.py: how it is made, and what of it stands in for hardware runs)."""
+    from tests.unit_runs import build_runs
+
+    return build_runs(tmp_path_factory.mktemp("units"))

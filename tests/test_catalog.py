@@ -7,6 +7,8 @@ The tests that take the ``backend`` fixture run here against SQLite and, in
 
 from __future__ import annotations
 
+import re
+
 import hashlib
 import json
 import shutil
@@ -183,7 +185,8 @@ def test_killed_run_is_running_then_crashed_on_rebuild(tmp_path: Path, backend: 
         (row,) = _wait("a running row in the live catalogue", lambda: rows_of(url))
         path = Path(row["path"])
         assert (row["status"], row["verdict"], row["file_sha256"], row["unit_serial"]) == ("running", None, "", "SN3")
-        _wait("rows recorded", lambda: read_run_summary(path).streams[0].rows >= 100)
+        # (until the recording starts the name holds the run's placeholder, without streams: issue 31, D5)
+        _wait("rows recorded", lambda: any(s.rows >= 100 for s in read_run_summary(path).streams))
         p.send_signal(signal.SIGKILL)
         p.wait(timeout=10)
     finally:
@@ -249,7 +252,7 @@ def synthetic_rows() -> list[dict[str, Any]]:
             "path": f"/nonexistent/runs/{i:02d}.h5", "file_sha256": "" if status == "running" else f"{i:064x}",
             "unit_serial": f"SN{i % 3 + 1}", "unit_part": "P-100" if i % 2 else "P-200", "unit_revision": "A",
             "station": "tvac-1" if i % 4 < 2 else "rt-2", "procedure_name": procs[i % 4], "procedure_sha256": f"{i % 4:064x}",
-            "operator": "ana", "mode": "hardware", "started_utc": NOW - timedelta(hours=12 * (24 - i)),
+            "operator": "ana", "mode": "sim" if i % 5 in (1, 2) else "hardware", "started_utc": NOW - timedelta(hours=12 * (24 - i)),
             "ended_utc": None if status == "running" else NOW - timedelta(hours=12 * (24 - i) - 1), "run_time_s": 3600.0,
             "status": status, "verdict": verdicts[status][(i // len(statuses)) % len(verdicts[status])],
             "first_failed_check": "bias_z" if i % 5 == 0 else None, "reason": "operator stop" if status == "aborted" else None,
@@ -276,6 +279,9 @@ FILTERS: list[tuple[list[str], Callable[[dict[str, Any]], bool]]] = [
     (["--vacuum-below", "1e-4 Torr"], lambda r: r["min_pressure_torr"] is not None and r["min_pressure_torr"] <= 1e-4),
     (["--vacuum-below", "1.4e-2 mbar"], lambda r: r["min_pressure_torr"] is not None and r["min_pressure_torr"] <= 1.4e-2 * 0.750062),
     (["--unit", "SN3", "--limit", "3"], lambda r: r["unit_serial"] == "SN3"),
+    (["--mode", "dry-run"], lambda r: r["mode"] == "sim"),  # issue 30: dry-runs apart from real runs
+    (["--mode", "real", "--verdict", "passed"], lambda r: r["mode"] == "hardware" and r["verdict"] == "passed"),
+    (["--mode", "sim", "--verdict", "passed"], lambda r: r["mode"] == "sim" and r["verdict"] == "passed"),
 ]
 
 
@@ -335,11 +341,41 @@ def test_table_fits_80_columns(tmp_path: Path, capsys: pytest.CaptureFixture[str
     lines = capsys.readouterr().out.splitlines()
     assert max(len(line) for line in lines) <= 80, "\n".join(lines)
     long = rows[0]["procedure_name"]  # whole, continued over lines, never cut to "…"
-    col, end = lines[1].index("procedure"), lines[1].index("status")
-    assert "…" not in "".join(lines) and "".join(line[col:end].strip() for line in lines[2:6]) == long
-    assert "Torr" in lines[0] + lines[1] and "degC" in lines[0] + lines[1]
-    assert lines[-1] == f"{len(rows)} run(s)"
+    col, end = lines[0].index("procedure"), lines[0].index("mode")
+    pieces = [line[col:end].strip() for line in lines[1:6]]
+    assert "…" not in "".join(lines) and any("".join(pieces[:k]) == long for k in range(2, 6)), pieces
+    # the environment did not fit beside the names: it is in the notes, with its units
+    assert any(re.fullmatch(r"\s+\d+ p min \S+ Torr, T \S+ \.\. \S+ degC", line) for line in lines), "\n".join(lines)
+    assert lines[-4:-1] == [f"{len(rows)} run(s):", "  real     14: 3 passed, 2 failed, 1 no verdict, 6 incomplete, 2 running",
+                            "  DRY-RUN  10: 1 passed, 4 failed, 1 no verdict, 2 incomplete, 2 running"]
+    assert lines[-1].startswith("DRY-RUN: not acceptance evidence")
     assert any("first failed: bias_z" in line for line in lines) and any("aborted: operator stop" in line for line in lines)
+
+
+def test_runs_tell_a_dry_run_from_a_real_run_at_80_columns(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 30 item 1: `bench runs --verdict passed` listed dry-runs as plain passes, with no mode
+    column, and printed 760 Torr as 7.6e+02. Each row now names its mode (DRY-RUN for a simulated
+    run), the summary counts verdicts per mode, pressures read 760 and 1e-05."""
+    url = str(tmp_path / "c.sqlite")
+    rows = [r for r in synthetic_rows() if r["verdict"] == "passed"][:4]
+    for r, (mode, p) in zip(rows, (("hardware", 760.0), ("sim", 760.0), ("sim", 1e-5), ("hardware", None))):
+        r.update(mode=mode, min_pressure_torr=p, procedure_name="tvac")
+    with open_catalog(resolve_url(url)) as cat:
+        cat.upsert(rows)
+    capsys.readouterr()
+    assert main(["runs", "--catalog", url, "--verdict", "passed"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert max(len(line) for line in lines) <= 80, "\n".join(lines)
+    table = [line for line in lines if re.match(r"\d+ 20", line)]  # one line per run
+    assert [("DRY-RUN" in line, " real " in line) for line in table] == [(m == "sim", m == "hardware") for m in
+                                                                     [r["mode"] for r in sorted(rows, key=lambda r: r["started_utc"])]], "\n".join(lines)
+    text = "\n".join(lines)
+    assert "7.6e+02" not in text and " 760 " in text + " " and "1e-05" in text
+    assert lines[-4:-1] == ["4 run(s):", "  real      2: 2 passed", "  DRY-RUN   2: 2 passed"]
+    assert main(["runs", "--catalog", url, "--mode", "real"]) == 0
+    assert "DRY-RUN" not in capsys.readouterr().out
+    assert main(["runs", "--catalog", url, "--mode", "simulation"]) == 2
+    assert capsys.readouterr().err.startswith("--mode: expected one of real, dry-run")
 
 
 def test_unreachable_catalogue_only_warns(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -9,7 +9,6 @@ Every test gets a new database. When the server cannot be started the tests skip
 
 from __future__ import annotations
 
-import glob
 import itertools
 import os
 import shutil
@@ -21,6 +20,7 @@ from typing import Iterator
 
 import pytest
 
+from tests.programs import find_program
 from tests.test_catalog import (  # noqa: F401 - collected here again, with the PostgreSQL ``backend`` below
     Backend,
     test_dry_runs_appear_with_status_and_verdict,
@@ -36,15 +36,6 @@ SERVER_USER = "bench"
 """The database superuser initdb creates (trust authentication on 127.0.0.1 only)."""
 
 
-def _pg_bin(name: str) -> str | None:
-    """A PostgreSQL server program: on PATH, else the newest /usr/lib/postgresql/*/bin."""
-    found = shutil.which(name)
-    if found:
-        return found
-    candidates = sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"), key=lambda p: int(Path(p).parts[-3]))
-    return candidates[-1] if candidates else None
-
-
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -55,7 +46,7 @@ class Server:
     """A throwaway PostgreSQL cluster in ``root`` (``start``, ``stop``); ``port`` on 127.0.0.1."""
 
     def __init__(self) -> None:
-        self.initdb, self.pg_ctl = _pg_bin("initdb"), _pg_bin("pg_ctl")
+        self.initdb, self.pg_ctl = find_program("initdb"), find_program("pg_ctl")  # /usr/lib/postgresql/<major>/bin
         self.root = Path(tempfile.mkdtemp(prefix="bench-pg-"))
         self.data = self.root / "data"
         self.log = self.root / "server.log"
@@ -71,7 +62,7 @@ class Server:
         if not (self.initdb and self.pg_ctl):
             return "PostgreSQL server programs (initdb, pg_ctl) not found: install Debian's 'postgresql' package (dev.py does)"
         if os.geteuid() == 0:  # initdb and postgres refuse root
-            runuser = shutil.which("runuser")
+            runuser = find_program("runuser")  # /usr/sbin, off a PATH such as /usr/bin:/bin
             if runuser is None:
                 return "running as root and 'runuser' is not available to start PostgreSQL as another user"
             self.as_user = [runuser, "-u", "nobody", "--"]

@@ -173,6 +173,7 @@ def test_kill_9_during_realtime_run_leaves_readable_file(tmp_path):
     assert r.returncode == 0 and ("crashed" in status_line or "running" in status_line), status_line
 
 
+@pytest.mark.signals
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGXFSZ],
                          ids=["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGXFSZ"])
 def test_signal_aborts_to_safe_state(tmp_path, sig):
@@ -196,6 +197,7 @@ def test_signal_aborts_to_safe_state(tmp_path, sig):
     assert any(e.kind == "reply" and e.data[2:3] == b"\x92" for e in s.events)
 
 
+@pytest.mark.signals
 def test_second_sigint_does_not_skip_safe_state(tmp_path):
     p, runs = _start_realtime(tmp_path, 60)
     try:

@@ -46,7 +46,7 @@ from hypothesis import strategies as st
 from bench.analysis.dataset import COLUMNS, dataset_from_csv, dataset_from_run, load_dataset
 from bench.config import load_config
 from bench.csvsrc import read_numeric_csv
-from bench.errors import InputError, InputErrors, InstrumentError, ProtocolError
+from bench.errors import DeviceFault, InputError, InputErrors, InstrumentError, InstrumentTimeout, ProtocolError
 from bench.procedure import load_procedure, parse_procedure
 from bench.record.reader import read_run_summary
 from bench.record.writer import FORMAT_VERSION
@@ -58,6 +58,7 @@ from drivers.stepper_bench import StepperBench
 from drivers.thermocouple_reader import ThermocoupleReader
 from drivers.tpg261 import Tpg261, parse_pr_reply
 from tests.conftest import ROOT
+from tests.test_acs_protocol import SYNC, frame_bytes
 
 _BASE = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
                                                        HealthCheck.data_too_large, HealthCheck.filter_too_much])
@@ -142,18 +143,24 @@ def test_decoder_on_damaged_streams_returns_only_crc_valid_frames_and_resynchron
     stream += bytes(2 + 4 + proto.MAX_PAYLOAD + 2)  # zeros: every held candidate becomes decidable
     dec = proto.FrameDecoder(accept_unknown_types=board_side)
     cuts = sorted(set(data.draw(st.lists(st.integers(0, len(stream)), max_size=8))) | {0, len(stream)})
-    decoded_data, replies, accepted = [], [], 0
+    decoded_data, replies, accepted, counters = [], [], 0, []
     for a, b in zip(cuts[:-1], cuts[1:]):
+        held = dec.pending_bytes
         batch = dec.feed(stream[a:b])
         assert batch.frames_ok == batch.counter.size + len(batch.replies)
-        assert batch.garbage_bytes >= 0 and batch.crc_errors >= 0 and batch.dropped_frames >= 0
+        # this feed's bytes and those held from the last: in a good frame, garbage, or held again
+        assert frame_bytes(batch) + batch.garbage_bytes + dec.pending_bytes == held + (b - a)
+        assert batch.crc_errors <= stream[a - held:b].count(SYNC)  # each CRC error starts at a sync word
         decoded_data += _reencoded(batch)
         replies += batch.replies
-        accepted += proto.DATA_FRAME_LEN * batch.counter.size + sum(proto.OVERHEAD + len(p) for _, p in batch.replies)
+        accepted += frame_bytes(batch)
+        counters += batch.counter.tolist()
     for frame in decoded_data + [proto.encode_frame(t, p) for t, p in replies]:
         assert frame in stream, f"decoder returned a frame that is not in its input: {frame.hex()}"
     assert dec.pending_bytes == 0
     assert dec.garbage_bytes + accepted == len(stream)
+    # dropped frames: the counter gaps (modulo 65536) between the data frames returned, across feeds
+    assert dec.dropped_frames == sum((c1 - c0 - 1) % 65536 for c0, c1 in zip(counters, counters[1:]) if c1 != c0)
     returned = decoded_data + [proto.encode_frame(t, p) for t, p in replies]
     missing = [f.hex() for f in intact if f not in returned]
     assert not missing, f"undamaged frames not decoded (no resynchronisation): {missing}"
@@ -379,26 +386,85 @@ def _scpi_answering(answers: dict[str, bytes]) -> ScriptedPort:
     return ScriptedPort(reply, baudrate=57600)
 
 
-@fuzz(100)
-@given(answer=_lines("0123456789,.E+-naif \r\x00_", max_size=60), query=st.sampled_from(["read", "rjun", "identify", "errors"]))
-def test_thermocouple_reader_turns_any_answer_into_values_or_an_instrument_error(answer, query):
-    reader = ThermocoupleReader(_scpi_answering({"READ?": answer, "SENS:TEMP:TRAN:TC:RJUN?": answer, "*IDN?": answer,
-                                                 "SYST:ERR?": answer if query == "errors" else b'+0,"No error"'}), timeout_s=0.01)
+_READING = st.one_of(st.floats(-270.0, 1372.0).map(lambda v: f"{v:+.8E}"), st.sampled_from(["+9.90000000E+37", "-9.90000000E+37"]))
+"""A reading as the 34970A sends it, SD.DDDDDDDDESDD over type K's range (degC), or the overload of either
+sign (docs/golden/keysight-34970a.md K6, K7)."""
+_IDN = st.lists(st.text(st.characters(min_codepoint=0x21, max_codepoint=0x7E, exclude_characters=","), min_size=1, max_size=12),
+                min_size=4, max_size=4)
+"""Four ``*IDN?`` fields (vendor, model, serial, firmware): printable ASCII without commas."""
+_SCPI_ERROR = st.tuples(st.integers(-440, -100), st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E, exclude_characters='"'), max_size=30))
+
+
+def _reader_answering(answer: bytes, query: str) -> ThermocoupleReader:
+    """A reader configured for channels 101 and 102 (no error queued) whose ``query`` is answered with ``answer``."""
+    scpi = {"read": "READ?", "rjun": "SENS:TEMP:TRAN:TC:RJUN?", "identify": "*IDN?", "errors": "SYST:ERR?"}[query]
+    answers = {"SYST:ERR?": b'+0,"No error"', scpi: answer}
+    reader = ThermocoupleReader(_scpi_answering(answers), timeout_s=0.01)
     if query != "errors":
         reader.configure([101, 102])
-    try:
-        if query == "read":
-            scan = reader.read()
-            assert set(scan.temps_c) == {101, 102}
-            assert all(v is None or math.isfinite(v) for v in scan.temps_c.values())
-        elif query == "rjun":
-            assert math.isfinite(reader.reference_junction_c(101))
-        elif query == "identify":
-            assert len(reader.identify()) == 4
+    return reader
+
+
+@fuzz(60)
+@given(readings=st.lists(_READING, min_size=2, max_size=2), rjun=st.floats(-55.0, 85.0), idn=_IDN, error=st.one_of(st.none(), _SCPI_ERROR))
+def test_thermocouple_reader_gives_the_values_of_every_well_formed_answer(readings, rjun, idn, error):
+    """Well-formed answers (K1-K9 of the golden table, with drawn values) are read, never refused."""
+    scan = _reader_answering(",".join(readings).encode() + b"\r", "read").read()
+    for ch, text in zip((101, 102), readings):
+        if abs(float(text)) > 9e37:
+            assert scan.temps_c[ch] is None and ch in scan.open_channels
         else:
-            reader.check_errors()
+            assert scan.temps_c[ch] == float(text) and ch not in scan.open_channels
+    assert _reader_answering(f"{rjun:+.8E}\r".encode(), "rjun").reference_junction_c(101) == pytest.approx(rjun, rel=1e-8)
+    assert _reader_answering(",".join(idn).encode(), "identify").identify() == dict(zip(("vendor", "model", "serial", "firmware"), idn))
+    if error is None:
+        _reader_answering(b'+0,"No error"\r', "errors").check_errors()
+    else:
+        queued = f'{error[0]:+d},"{error[1]}"'
+        with pytest.raises(DeviceFault) as exc:  # the queue holds the error, then says it is empty
+            _reader_answering(queued.encode() + b'\n+0,"No error"', "errors").check_errors()
+        assert queued in str(exc.value) and "No error" not in str(exc.value)
+
+
+def _first_line(answer: bytes) -> str | None:
+    """The first non-blank line of ``answer`` (an answer is read up to LF, as ASCII, surrounding white
+    space stripped), or None if it has none (then the reader waits for one and times out)."""
+    lines = (raw.decode("ascii", "replace").strip() for raw in (answer + b"\n").split(b"\n"))
+    return next((line for line in lines if line), None)
+
+
+@fuzz(100)
+@given(answer=_lines("0123456789,.E+-naif \r\x00_", max_size=60), query=st.sampled_from(["read", "rjun", "identify", "errors"]))
+def test_thermocouple_reader_turns_any_answer_into_its_values_or_an_instrument_error(answer, query):
+    """Whatever the logger answers: the values of the answer's first line, or an ``InstrumentError``
+    (a timeout exactly when no line came; the queued error quoted when ``SYST:ERR?`` gives one)."""
+    line = _first_line(answer)
+    reader = _reader_answering(answer, query)
+    call = {"read": reader.read, "rjun": lambda: reader.reference_junction_c(101), "identify": reader.identify,
+            "errors": reader.check_errors}[query]
+    try:
+        result = call()
+    except InstrumentTimeout:
+        assert line is None
+        return
+    except DeviceFault as exc:
+        assert query == "errors" and line is not None and not line.startswith(("+0", "0,")) and line in str(exc)
+        return
     except InstrumentError:
-        pass
+        assert line is not None and query != "errors"  # an answer the reader refuses (ProtocolError)
+        return
+    assert line is not None
+    if query == "read":
+        values = [float(v) for v in line.split(",")]
+        assert len(values) == 2
+        for ch, v in zip((101, 102), values):
+            assert result.temps_c[ch] == (None if not math.isfinite(v) or abs(v) >= 9e37 else v)
+    elif query == "rjun":
+        assert result == float(line) and math.isfinite(result)
+    elif query == "identify":
+        assert list(result.values()) == [p.strip() for p in line.split(",")]
+    else:
+        assert result is None and line.startswith(("+0", "0,"))
 
 
 def test_thermocouple_reference_junction_garbage_is_a_protocol_error():

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import itertools
 import re
-import shutil
 import subprocess
 import sys
 import time
@@ -27,6 +26,7 @@ from bench.sim.watlow_f4_rtu import WatlowF4RtuSim
 from bench.sim.watlow_f4_server import WatlowF4Server
 from drivers.tvac import TvacChamber
 from drivers.watlow_f4 import REGISTERS, WatlowF4
+from tests.programs import find_program
 from tests.sim_serve import sim_serve
 from tests.conftest import ROOT, SIM_CONFIG, run_cli
 
@@ -263,9 +263,9 @@ def test_served_controller_answers_a_golden_frame_on_the_tty(served_rtu):
 
 
 def test_mbpoll_reads_the_served_controller_in_rtu_mode(served_rtu):
-    mbpoll = shutil.which("mbpoll")
+    mbpoll = find_program("mbpoll")
     if mbpoll is None:
-        pytest.skip("mbpoll not on PATH (python3 dev.py test installs it with apt-get where allowed): foreign RTU client not run")
+        pytest.skip("mbpoll not installed (python3 dev.py test installs it with apt-get where allowed): foreign RTU client not run")
     common = [mbpoll, "-m", "rtu", "-a", "1", "-b", "9600", "-d", "8", "-P", "none", "-s", "1", "-c", "1", "-1", "-o", "2"]
     # mbpoll numbers registers from 1 by default: reference 101 is PDU address 100 (PV input 1)
     one_based = subprocess.run(common + ["-r", "101", served_rtu], capture_output=True, text=True, timeout=20)

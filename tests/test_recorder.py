@@ -160,7 +160,7 @@ def test_round_trip(tmp_path: Path) -> None:
     console = Console(record=True, width=200)
     render_summary(s, console)
     out = console.export_text()
-    for text in ("startup_profile", "completed", "acs_board", "100.00", "gyro[3] (deg/s)", "built-in test", "failed",
+    for text in ("startup_profile", "completed", "acs_board", "100 Hz", "gyro[3] (deg/s)", "built-in test", "failed",
                  "acs_board: 1 command, 0 replies, last at 0:00:10", "step_end 2"):
         assert text in out, text
     assert "aa 21 00" not in out  # instrument traffic is summarised, not listed ...
@@ -445,8 +445,9 @@ def test_read_while_being_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     try:
         path = Path(lines.wait_for("created").split(" ", 1)[1])
         lines.wait_for("setup done")
-        with pytest.raises(InputError, match="open for writing outside SWMR mode|locked by the process writing it"):
-            read_run_summary(path)
+        # set up under a hidden name (HDF5 refuses readers then): the name holds a readable placeholder (issue 31, D5)
+        s = read_run_summary(path)
+        assert s.status == "running" and not s.streams and not s.events
         proc.stdin.write("start\n")
         proc.stdin.flush()
         rows = int(lines.wait_for("flushed").split()[1])

@@ -241,13 +241,15 @@ def test_report_opens_with_verdict_and_checks(rate_report):
     assert rate_report.headings[:4] == ["1. Verdict and checks", "2. Unit under test and run", "3. Steps",
                                         "4. Instruments and streams"]
     first = rate_report.body["1. Verdict and checks"]
-    assert first.lstrip().startswith('<p class="verdict pass" id="verdict">PASSED</p>')
+    # a dry-run: its pass is never a plain green PASSED (issue 30), and it says why first
+    assert first.lstrip().startswith('<p class="verdict warn" id="verdict">PASSED (DRY-RUN)</p>')
+    assert "<li>DRY-RUN: simulated instruments, not acceptance evidence</li>" in first
     (checks,) = rate_report.tables("Verdict and checks")
     assert checks[0] == ["#", "check", "signal", "statistic", "window", "value", "limits", "outcome"]
     sf = next(r for r in checks if r[1] == "sf_z")
-    assert sf[5].endswith(" %") and sf[6] == "-5 … 5 %" and sf[7] == "passed"
+    assert sf[5].endswith(" %") and sf[6] == "-5 .. 5 %" and sf[7] == "passed (dry-run)"
     bias = next(r for r in checks if r[1] == "bias_z")
-    assert bias[5].endswith(" deg/s") and bias[6] == "-0.4 … 0.4 deg/s"
+    assert bias[5].endswith(" deg/s") and bias[6] == "-0.4 .. 0.4 deg/s"
 
 
 def test_identity_from_root_attributes(tmp_path, rate_report):
@@ -279,7 +281,7 @@ def _summary(checks: list[dict], status: str = "completed", planned: int | None 
     if planned is not None:
         events.append(EventRow(0.0, 0.0, "procedure", "", -1, "", json.dumps({"steps": planned}).encode()))
     streams = [StreamSummary("acs_board", {"gyro": "deg/s"}, {"gyro": (3,)}, 10, 0.0, 10.0, 1.0)]
-    return RunSummary(Path("synthetic.h5"), {}, status, "", "", {}, streams, steps, events,
+    return RunSummary(Path("synthetic.h5"), {"mode": "hardware"}, status, "", "", {}, streams, steps, events,
                       "interlock tripped" if status == "aborted" else "")
 
 
@@ -311,13 +313,14 @@ def test_verdicts_and_recorded_checks():
     page = Report(f"<h2>1. Verdict and checks</h2>{R.section_verdict(summary, R.check_results(summary))}")
     (rows,) = page.tables("Verdict and checks")
     assert [r[5:] for r in rows[1:]] == [["1 deg/s", "none", "recorded (no limits: no verdict)"]] * 2 + [
-        ["1 deg/s", "-2 … 2 deg/s", "passed"]]
+        ["1 deg/s", "-2 .. 2 deg/s", "passed"]]
     assert R.limits_text(None, 5.0, "%") == "≤ 5 %" and R.limits_text(0.1, None, "") == "≥ 0.1"
 
 
 def test_aborted_session_is_incomplete():
     rep = Report(R.build_report(SESSIONS / "chamber_interlock_abort.h5"))
-    assert rep.section("Verdict and checks").startswith("INCOMPLETE the run is aborted: ")
+    assert rep.section("Verdict and checks").startswith(
+        "INCOMPLETE (DRY-RUN) DRY-RUN: simulated instruments, not acceptance evidence the run is aborted: ")
 
 
 # ---- 4. one time unit ----------------------------------------------------------------------------------

@@ -48,7 +48,7 @@ def _free_port() -> int:
 def test_serve_starts_all_five_and_foreign_clients_reach_them(tmp_path):
     """The done-criterion of the instruments issue: all five served, endpoints printed, the
     chamber's PV read by mbpoll, the rate table reached by python-can's own slcan interface."""
-    import shutil
+    from tests.programs import find_program
 
     port = _free_port()
     text = SIM_CONFIG.read_text().replace("modbus_port: 5020", f"modbus_port: {port}")
@@ -75,9 +75,9 @@ def test_serve_starts_all_five_and_foreign_clients_reach_them(tmp_path):
         assert out.returncode == 0, out.stderr
         assert "TRT-7" in out.stdout
 
-        mbpoll = shutil.which("mbpoll")
+        mbpoll = find_program("mbpoll")
         if mbpoll is None:
-            pytest.skip("mbpoll not on PATH (python3 dev.py test installs it with apt-get where allowed): foreign Modbus client not run")
+            pytest.skip("mbpoll not installed (python3 dev.py test installs it with apt-get where allowed): foreign Modbus client not run")
         res = subprocess.run([mbpoll, "-m", "tcp", "-p", str(port), "-a", "1", "-0", "-r", "100", "-c", "1", "-1", "127.0.0.1"],
                              capture_output=True, text=True, timeout=20)
         assert res.returncode == 0, res.stdout + res.stderr

@@ -22,6 +22,8 @@ from bench.record.space import RESERVE_SUFFIX
 from bench.startup_signals import STOP_SIGNALS, StartupSignals, StoppedDuringStartup
 from tests.conftest import ROOT, SIM_CONFIG, write_procedure
 
+pytestmark = pytest.mark.signals  # every test here delivers stop signals
+
 STARTUP_ABORT = "stopped during start-up by"
 
 

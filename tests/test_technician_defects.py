@@ -105,9 +105,16 @@ def test_prompt_keeps_the_heartbeat_reads_waiting_and_asks_again_after_a_typo(tm
         seen["summary"] = read_run_summary(path, stale_after_s=STALE_S)
         seen["watch"] = snapshot(path, stale_after_s=STALE_S)
         os.write(terminal, b"maybe\n")
-        time.sleep(0.5)
-        seen["after_typo"] = read_run_summary(path, stale_after_s=STALE_S)
-        os.write(terminal, b"yes\n")
+        try:  # wait for the typo in the run file and the question asked again (a second prompt event)
+            deadline = time.monotonic() + 30.0
+            while time.monotonic() < deadline and "after_typo" not in seen:
+                summary = read_run_summary(path, stale_after_s=STALE_S)
+                typo = any(json.loads(e.message).get("answer") == "maybe" for e in summary.events if e.kind == "operator")
+                if typo and sum(e.kind == "prompt" for e in summary.events) == 2:
+                    seen["after_typo"] = summary
+                time.sleep(0.05)
+        finally:
+            os.write(terminal, b"yes\n")
 
     person = threading.Thread(target=operator_at_the_terminal)
     person.start()
@@ -125,10 +132,11 @@ def test_prompt_keeps_the_heartbeat_reads_waiting_and_asks_again_after_a_typo(tm
     console = Console(record=True, width=100)
     console.print(build(state))
     assert "waiting for operator: Close the chamber door" in console.export_text()
+    assert "after_typo" in seen, "no invalid answer and second question in the run file within 30 s"
     assert seen["after_typo"].live_status == "waiting"  # asked again, still waiting
 
     assert result.status == "completed", result.abort_reason
-    assert any("Close the chamber door" in m and "[yes/no]" in m for m in progress.messages), progress.messages
+    assert any("Close the chamber door" in m and "[yes/no; no aborts the run]" in m for m in progress.messages), progress.messages
     assert any("'maybe' is not an accepted answer" in m and "yes, no" in m for m in progress.messages), progress.messages
     answers = _operator_events(path)
     assert [(a["answer"], a["valid"]) for a in answers] == [("maybe", False), ("yes", True)]
@@ -136,17 +144,23 @@ def test_prompt_keeps_the_heartbeat_reads_waiting_and_asks_again_after_a_typo(tm
     assert final.status == "completed" and sum(e.kind == "prompt" for e in final.events) == 2
 
 
-def test_prompt_gives_up_after_three_invalid_answers(tmp_path: Path, terminal: int) -> None:
-    runner, _, lab = _runner(tmp_path, PROMPT_PROCEDURE, Operator(None, Operator.terminal()))
-    os.write(terminal, b"maybe\nperhaps\nsure?\n")
+def test_typos_never_abort_and_a_typed_no_is_confirmed_first(tmp_path: Path, terminal: int) -> None:
+    """Issue 30 item 2: three typos aborted the run, and "no" aborted it without a word beforehand.
+    Now typos are asked again (until the prompt's timeout), the question says that no aborts, and a
+    typed "no" stops the run only once the person types 'abort'."""
+    runner, progress, lab = _runner(tmp_path, PROMPT_PROCEDURE, Operator(None, Operator.terminal()))
+    os.write(terminal, b"maybe\nperhaps\nsure?\nyse\nno\nkeep going\nno\nabort\n")
     try:
         result = runner.run()
     finally:
         lab.close()
     assert result.status == "aborted"
-    assert "no valid answer at prompt 'door' after 3 attempts" in result.abort_reason, result.abort_reason
-    assert "'sure?'" in result.abort_reason and "yes, no" in result.abort_reason
-    assert [a["answer"] for a in _operator_events(runner.rec.path)] == ["maybe", "perhaps", "sure?"]
+    assert "answered 'no' at prompt 'door'" in result.abort_reason, result.abort_reason
+    events = _operator_events(runner.rec.path)
+    assert [a.get("answer") for a in events if "answer" in a] == ["maybe", "perhaps", "sure?", "yse", "no", "no"]
+    assert [(a["confirm_abort"], a["confirmed"]) for a in events if "confirm_abort" in a] == [("keep going", False), ("abort", True)]
+    assert any("stops the run" in m and "'abort'" in m for m in progress.messages), progress.messages
+    assert any("not stopped; asking 'door' again" in m for m in progress.messages), progress.messages
 
 
 def test_prompt_times_out_with_the_reason(tmp_path: Path, terminal: int) -> None:

@@ -5,7 +5,6 @@ driver <-> simulated gauge over ``sim://``, and the composite ``TvacChamber``. A
 from __future__ import annotations
 
 import itertools
-import shutil
 import subprocess
 import time
 
@@ -23,6 +22,7 @@ from bench.sim.watlow_f4_server import WatlowF4Server
 from drivers.tpg261 import Tpg261, parse_pr_reply
 from drivers.tvac import TvacChamber
 from drivers.watlow_f4 import BY_NAME, REGISTERS, WatlowF4
+from tests.programs import find_program
 
 TIMEOUT_S = 0.3
 _names = itertools.count()
@@ -123,9 +123,9 @@ def test_negative_temperatures_are_signed(f4, clock, chamber):
 
 
 def test_mbpoll_reads_pv_at_raw_address_100(server, clock, chamber):
-    mbpoll = shutil.which("mbpoll")
+    mbpoll = find_program("mbpoll")
     if mbpoll is None:
-        pytest.skip("mbpoll not on PATH (apt-get install mbpoll): raw-address check with a foreign client not run")
+        pytest.skip("mbpoll not installed (apt-get install mbpoll): raw-address check with a foreign client not run")
     chamber.command_set_point(clock.now(), 45.0)
     clock.sleep(900)
     expected = round(chamber.air_temp_c(clock.now()) * 10)

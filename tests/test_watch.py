@@ -211,7 +211,7 @@ def test_watch_once_renders_step_and_readings(tmp_path: Path) -> None:
     line = next(x for x in text.splitlines() if "air_temp" in x)
     assert "22.2" in line and "degC" in line
     line = next(x for x in text.splitlines() if "pressure" in x)
-    assert "0.00033287" in line and "Torr" in line and "█▇▆▅▅▄▃▃▂▂▁▁" in line  # 12 rows: 12 points
+    assert "3.3287e-04" in line and "Torr" in line and "█▇▆▅▅▄▃▃▂▂▁▁" in line  # 12 rows: 12 points (issue 30: one formatter)
     assert "1,200 rows" in text and "100 Hz" in text
     assert "step_start" in text and "hot plateau soak" in text
     assert max(len(x) for x in text.splitlines()) <= 120
@@ -345,6 +345,7 @@ def test_missing_file_is_waited_for(tmp_path: Path) -> None:
     assert "COMPLETED" in console.export_text()
 
 
+@pytest.mark.signals  # SIGINT must raise KeyboardInterrupt here, as in a terminal, not be ignored as in a background job
 def test_ctrl_c_ends_the_live_view_quietly(tmp_path: Path) -> None:
     rec, board, _ = _create(tmp_path)
     rec.event("step_start", "record", "endless soak", t_s=0.0, step=0)

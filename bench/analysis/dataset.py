@@ -28,6 +28,7 @@ import numpy as np
 
 from bench.csvsrc import read_numeric_table
 from bench.errors import InputError, Location
+from bench.inputs import read_head
 
 COLUMNS: dict[str, str] = {
     "time_s": "sample time (s)",
@@ -172,6 +173,7 @@ def load_dataset(path: str | Path, mapping=None) -> Dataset:
     p = Path(path)
     if not p.exists():
         raise InputError("data file not found", Location(p))
+    read_head(p, 0)  # a FIFO or device is refused here, before any reader could block on it
     if mapping is not None:
         from bench.analysis.foreign import dataset_from_foreign
 
@@ -186,11 +188,11 @@ HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
 def is_hdf5(p: Path) -> bool:
-    """Whether ``p`` starts with the HDF5 signature (False when it cannot be read)."""
+    """Whether ``p`` starts with the HDF5 signature (False when it cannot be read or is not a
+    regular file: a FIFO is never opened for reading, which would block)."""
     try:
-        with open(p, "rb") as fh:
-            return fh.read(8) == HDF5_SIGNATURE
-    except OSError:
+        return read_head(p, len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
+    except InputError:
         return False
 
 

@@ -42,6 +42,7 @@ import numpy as np
 
 from bench.analysis.dataset import COLUMNS, HDF5_SIGNATURE, Dataset, is_hdf5
 from bench.errors import InputError, InputErrors, Location
+from bench.inputs import read_head
 from bench.record.layout import ATTR_FORMAT_VERSION
 
 MAX_ROWS = 20_000_000
@@ -478,11 +479,7 @@ def _open(path: Path):
         raise InputError("data file not found", Location(path))
     if path.is_dir():
         raise InputError("is a directory, not a data file", Location(path))
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(8)
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", Location(path)) from None
+    head = read_head(path, 8)  # a FIFO or device: refused, never opened blocking
     if head != HDF5_SIGNATURE:
         what = ("a netCDF-3 classic file; convert it to netCDF-4 (nccopy -k nc4 IN OUT)" if head[:3] == b"CDF"
                 else "not an HDF5 or netCDF-4 file (no HDF5 signature at its start)")

@@ -69,5 +69,5 @@ class RunCatalogHook:
             self.ok = False
             reason = str(exc) if isinstance(exc, BenchError) else f"{type(exc).__name__}: {exc}"
             again = f"bench catalog rebuild {self.runs_dir}" + (f" --catalog {where}" if self.catalog else "")
-            self.warn(f"run {self.path.name} not catalogued at its {when} ({where}): {reason}; "
-                      f"the run file is unaffected; '{again}' adds it later")
+            later = "" if "bench catalog rebuild" in reason else f"; '{again}' adds it later"  # else the reason says what to do
+            self.warn(f"run {self.path.name} not catalogued at its {when} ({where}): {reason}; the run file is unaffected{later}")

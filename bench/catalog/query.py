@@ -38,6 +38,8 @@ class RunFilter:
     station: str | None = None
     status: str | None = None
     verdict: str | None = None
+    mode: str | None = None
+    """Stored mode (``hardware``, ``sim``, ``replay``, ``imported``; :func:`parse_mode`)."""
     since: datetime | None = None
     vacuum_below_torr: float | None = None
     limit: int | None = None
@@ -70,6 +72,17 @@ def parse_verdict(value: str | None, field: str = "--verdict") -> str | None:
     if v not in VERDICTS:
         raise InputError(f"expected one of {', '.join(VERDICTS)} (or no-verdict), got {value!r}", None, field)
     return v
+
+
+def parse_mode(value: str | None, field: str = "--mode") -> str | None:
+    """A mode filter: ``real`` (or ``hardware``), ``dry-run`` (or ``sim``), ``replay``, ``imported``
+    (:data:`bench.run_mode.FILTER_ALIASES`), as the stored mode."""
+    from bench.run_mode import parse_mode as parse
+
+    try:
+        return parse(value)
+    except ValueError as exc:
+        raise InputError(str(exc), None, field) from None
 
 
 def parse_since(value: str | None, now: datetime | None = None, field: str = "--since") -> datetime | None:
@@ -111,10 +124,14 @@ def parse_pressure(value: str | None, field: str = "--vacuum-below") -> float | 
     return torr
 
 
+MAX_LIMIT = 2**63 - 1
+"""Largest row limit (SQLite's and PostgreSQL's largest integer)."""
+
+
 def parse_limit(value: int | None, field: str = "--limit") -> int | None:
-    """A row limit: None or >= 1."""
-    if value is not None and value < 1:
-        raise InputError(f"must be at least 1, got {value}", None, field)
+    """A row limit: None or 1 .. :data:`MAX_LIMIT`."""
+    if value is not None and not 1 <= value <= MAX_LIMIT:
+        raise InputError(f"must be between 1 and {MAX_LIMIT}, got {value}", None, field)
     return value
 
 
@@ -138,6 +155,8 @@ def select_runs(f: RunFilter) -> sa.Select:
         stmt = stmt.where(runs.c.status == f.status)
     if f.verdict is not None:
         stmt = stmt.where(runs.c.verdict == f.verdict)
+    if f.mode is not None:
+        stmt = stmt.where(runs.c.mode == f.mode)
     if f.since is not None:
         stmt = stmt.where(runs.c.started_utc >= f.since)
     if f.vacuum_below_torr is not None:
@@ -148,8 +167,10 @@ def select_runs(f: RunFilter) -> sa.Select:
 
 
 def find_runs(cat: Catalog, f: RunFilter) -> list[dict[str, Any]]:
-    """The rows of filter ``f``, oldest start first, after :func:`refresh_running`."""
-    refresh_running(cat)
+    """The rows of filter ``f``, oldest start first, after :func:`refresh_running` (not on a
+    catalogue that is read-only here: its rows are listed as stored)."""
+    if not cat.read_only:
+        refresh_running(cat)
     rows = cat.select(select_runs(f))
     return rows[::-1] if f.limit is not None else rows
 

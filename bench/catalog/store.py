@@ -8,7 +8,13 @@ and selects rows with SQLAlchemy Core.
 Every wait is bounded: SQLite waits at most :data:`SQLITE_BUSY_TIMEOUT_S` for the write lock,
 PostgreSQL at most :data:`PG_CONNECT_TIMEOUT_S` to connect, :data:`PG_LOCK_TIMEOUT_MS` for a lock
 and :data:`PG_STATEMENT_TIMEOUT_MS` per statement. Database failures become one-line
-:class:`CatalogError` messages (the URL's password never appears).
+:class:`CatalogError` messages (the URL's password never appears: :func:`bench.redact.redact`).
+
+Nothing is written before the catalogue is known to be ours: a SQLite file is first checked to be
+a SQLite database (else: move it aside, rebuild), then its schema version read without writing,
+and only a version this bench knows is switched to WAL or migrated. A catalogue that cannot be
+written (a read-only file system, a file of another user) is opened read-only: queries work,
+writes fail with one line.
 """
 
 from __future__ import annotations
@@ -24,6 +30,8 @@ from sqlalchemy.engine import URL, Connection, Engine, make_url
 from bench import __version__
 from bench.catalog.schema import ROW_FIELDS, SCHEMA_VERSION, CatalogError, migrate, runs, schema_version
 from bench.errors import InputError
+from bench.redact import redact
+from bench.terminal_text import printable
 
 CATALOG_FILE = "catalog.sqlite"
 """Name of the embedded catalogue next to the run files (``RUNS_DIR/catalog.sqlite``)."""
@@ -40,6 +48,10 @@ UPSERT_BATCH_ROWS = 1000
 """Rows per INSERT statement of a bulk upsert (both backends take at least this many parameters)."""
 
 _SCHEMES = "postgresql://USER@HOST[:PORT]/DATABASE, sqlite:///PATH or a file path"
+SQLITE_HEADER = b"SQLite format 3\x00"
+"""The first 16 bytes of every SQLite database file."""
+PG_SSLMODES = ("disable", "allow", "prefer", "require", "verify-ca", "verify-full")
+"""The values libpq accepts for ``sslmode``."""
 
 
 def resolve_url(catalog: str | None, runs_dir: Path | None = None, *, field: str = "--catalog") -> URL:
@@ -53,14 +65,28 @@ def resolve_url(catalog: str | None, runs_dir: Path | None = None, *, field: str
     text = catalog.strip()
     if "://" not in text:
         return _sqlite_url(Path(text))
+    shown = printable(redact(text))
+    if any(c in text for c in "\x00\r\n") or not text.isprintable():
+        raise InputError(f"catalogue URL {shown!r} holds control characters", None, field)
+    authority = text.split("://", 1)[1].split("/", 1)[0]
+    if authority.count("@") > 1:
+        raise InputError(f"catalogue URL {shown!r}: its user or password holds an '@': write it as %40 "
+                         "(percent-encoded, as every special character of a URL password)", None, field)
     try:
         url = make_url(text)
-    except Exception as exc:  # noqa: BLE001 - SQLAlchemy raises ArgumentError and others for bad URLs
-        raise InputError(f"cannot read catalogue URL {_redact(text)!r}: {exc}; expected {_SCHEMES}", None, field) from None
+        port = url.port
+    except Exception as exc:  # noqa: BLE001 - SQLAlchemy raises ArgumentError, ValueError (a port that is no number)...
+        raise InputError(f"cannot read catalogue URL {shown!r}: {printable(redact(str(exc)))}; expected {_SCHEMES}", None, field) from None
     backend = url.get_backend_name()
     if backend in ("postgresql", "postgres"):
         if not url.database:
             raise InputError(f"catalogue URL {display_url(url)!r} names no database; expected {_SCHEMES}", None, field)
+        if port is not None and not 1 <= port <= 65535:
+            raise InputError(f"catalogue URL {display_url(url)!r}: port {port} is not a TCP port (1..65535)", None, field)
+        sslmode = url.query.get("sslmode")
+        if sslmode is not None and sslmode not in PG_SSLMODES:
+            raise InputError(f"catalogue URL {display_url(url)!r}: sslmode {printable(str(sslmode))!r} is not one of "
+                             f"{', '.join(PG_SSLMODES)}", None, field)
         return url.set(drivername="postgresql+psycopg")
     if backend == "sqlite":
         if not url.database or url.database == ":memory:":
@@ -71,10 +97,6 @@ def resolve_url(catalog: str | None, runs_dir: Path | None = None, *, field: str
 
 def _sqlite_url(path: Path) -> URL:
     return URL.create("sqlite", database=str(path.expanduser().resolve()))
-
-
-def _redact(text: str) -> str:
-    return re.sub(r"(://[^:/@]*:)[^@]*@", r"\1***@", text)
 
 
 def display_url(url: URL) -> str:
@@ -89,15 +111,31 @@ def sqlite_file(url: URL) -> Path | None:
     return Path(url.database) if url.get_backend_name() == "sqlite" and url.database else None
 
 
-def _engine(url: URL) -> Engine:
+SQLITE_ACCESS = ("rw", "ro", "immutable")
+"""How a SQLite catalogue is opened: read-write; read-only (``mode=ro``: a file this user cannot
+write); read-only and unchanging (``immutable=1``: a WAL database on a read-only file system, where
+SQLite cannot make the shared-memory file a read-only open needs)."""
+
+
+def _sqlite_connect(path: str, access: str) -> Any:
+    import sqlite3
+    from urllib.parse import quote
+
+    if access == "rw":
+        return sqlite3.connect(path, timeout=SQLITE_BUSY_TIMEOUT_S, check_same_thread=False)
+    query = "mode=ro" if access == "ro" else "mode=ro&immutable=1"
+    return sqlite3.connect(f"file:{quote(path)}?{query}", uri=True, timeout=SQLITE_BUSY_TIMEOUT_S, check_same_thread=False)
+
+
+def _engine(url: URL, access: str = "rw") -> Engine:
     if url.get_backend_name() == "sqlite":
-        engine = sa.create_engine(url, connect_args={"timeout": SQLITE_BUSY_TIMEOUT_S})
+        engine = sa.create_engine(url, creator=lambda: _sqlite_connect(str(url.database), access))
 
         @sa.event.listens_for(engine, "connect")
         def _on_connect(dbapi_conn: Any, _record: Any) -> None:
             dbapi_conn.isolation_level = None  # transactions are begun below, not by the driver
             cur = dbapi_conn.cursor()
-            cur.execute("PRAGMA journal_mode=WAL")  # readers never wait for the writer
+            # WAL (readers never wait for the writer) is switched on once, by open_catalog, after the version check
             cur.execute("PRAGMA synchronous=NORMAL")  # WAL: durable at checkpoints, never corrupt
             cur.close()
 
@@ -115,19 +153,47 @@ def _engine(url: URL) -> Engine:
 
 
 def describe_db_error(exc: BaseException) -> str:
-    """One line for a database failure: the driver's first line, without SQLAlchemy's background link."""
+    """One line for a database failure: the driver's first line, without SQLAlchemy's background
+    link, credentials or control characters."""
     orig = getattr(exc, "orig", None)
     text = str(orig if orig is not None else exc).strip()
     first = text.splitlines()[0] if text else type(exc).__name__
-    return re.sub(r"\s*\(Background on this error at: [^)]*\)", "", first)
+    return printable(redact(re.sub(r"\s*\(Background on this error at: [^)]*\)", "", first)))
+
+
+_NOT_OURS = ("file is not a database", "database disk image is malformed")
+"""SQLite's words for a file it cannot read as a database."""
+
+
+def move_aside_hint(path: Path) -> str:
+    """What to do with a catalogue file that is not a database: it is an index of the run files, so
+    moving it aside and rebuilding loses nothing."""
+    return (f"move it aside (mv {path} {path}.broken) and run 'bench catalog rebuild {path.parent}' "
+            "to make a new one from the run files")
+
+
+def _check_sqlite_file(path: Path) -> None:
+    """Refuse a SQLite catalogue file that is not a SQLite database (garbage, another program's
+    file) before SQLite touches it; an empty file is a new database."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(len(SQLITE_HEADER))
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise CatalogError(f"catalogue {path}: cannot be read: {exc.strerror or exc}") from None
+    if head and head != SQLITE_HEADER:
+        raise CatalogError(f"catalogue {path} is not a SQLite database; {move_aside_hint(path)}")
 
 
 class Catalog:
     """An open catalogue. Use as a context manager (``with open_catalog(url) as cat``)."""
 
-    def __init__(self, url: URL, engine: Engine):
+    def __init__(self, url: URL, engine: Engine, read_only: bool = False):
         self.url = url
         self.engine = engine
+        self.read_only = read_only
+        """True when the catalogue could only be opened for reading (queries work, writes raise)."""
 
     @property
     def backend(self) -> str:
@@ -147,11 +213,18 @@ class Catalog:
     @contextmanager
     def transaction(self, write: bool = False) -> Iterator[Connection]:
         """A transaction (committed on leaving the block); database errors become :class:`CatalogError`."""
+        if write and self.read_only:
+            raise CatalogError(f"catalogue {display_url(self.url)} is read-only here (a read-only file system, or a file "
+                               "this user cannot write): it can be queried, not written")
         try:
             with self.engine.connect().execution_options(write=write) as conn, conn.begin():
                 yield conn
         except sa.exc.SQLAlchemyError as exc:
-            raise CatalogError(f"catalogue {display_url(self.url)}: {describe_db_error(exc)}") from None
+            reason = describe_db_error(exc)
+            path = sqlite_file(self.url)
+            if path is not None and any(w in reason for w in _NOT_OURS):
+                reason += f"; {move_aside_hint(path)}"
+            raise CatalogError(f"catalogue {display_url(self.url)}: {reason}") from None
 
     def upsert(self, rows: Sequence[Mapping[str, Any]]) -> int:
         """Insert ``rows`` or replace the rows with the same ``path``, in one transaction; returns
@@ -208,27 +281,66 @@ def upsert_statement(conn: Connection) -> Any:
                                       set_={name: stmt.excluded[name] for name in ROW_FIELDS if name != "path"})
 
 
-def open_catalog(url: URL, *, create: bool = True, field: str = "--catalog") -> Catalog:
+def open_catalog(url: URL, *, create: bool = True, field: str = "--catalog", writes: bool = True) -> Catalog:
     """Open the catalogue at ``url`` and bring its schema to the current version.
 
     ``create=False`` (queries) refuses a SQLite file that does not exist instead of creating an
-    empty one: :class:`InputError` naming the option ``field`` that chose it. Raises
-    :class:`CatalogError` when the database cannot be reached or migrated."""
+    empty one: :class:`InputError` naming the option ``field`` that chose it. ``writes=False``
+    (the web station's requests) writes nothing at all: no WAL switch, no migration (a catalogue of
+    another version is then a :class:`CatalogError`). Raises :class:`CatalogError` when the database
+    cannot be reached or migrated."""
     path = sqlite_file(url)
     if path is not None:
         if not create and not path.exists():
             raise InputError(f"no catalogue at {path}: build it with 'bench catalog rebuild {path.parent}'", None, field)
         if create and not path.parent.is_dir():
             raise CatalogError(f"catalogue {path}: directory {path.parent} does not exist")
-    engine = _engine(url)
-    cat = Catalog(url, engine)
+        _check_sqlite_file(path)
+    for access in SQLITE_ACCESS if path is not None else ("rw",):
+        cat = Catalog(url, _engine(url, access), read_only=access != "rw")
+        try:
+            with cat.transaction() as conn:  # reads only: nothing is written before the version is known
+                found = schema_version(conn)
+            break
+        except CatalogError as exc:
+            cat.close()
+            cannot_write = "unable to open database file" in str(exc) or "readonly" in str(exc)
+            if path is None or access == SQLITE_ACCESS[-1] or not cannot_write or not path.is_file():
+                raise
     try:
-        with cat.transaction() as conn:
-            current = schema_version(conn) == SCHEMA_VERSION
-        if not current:  # only then take the write lock
+        if found > SCHEMA_VERSION:  # refused before anything is written (the run-file format_version policy)
+            raise CatalogError(f"catalogue schema version {found} is newer than this bench knows (up to {SCHEMA_VERSION}); "
+                               f"upgrade bench ({display_url(url)} was left as it is)")
+        if path is not None and not cat.read_only and writes:
+            cat.read_only = not _sqlite_wal(cat.engine)
+        if found != SCHEMA_VERSION:  # only then take the write lock
+            if not writes:
+                raise CatalogError(f"catalogue {display_url(url)} has schema version {found}, not {SCHEMA_VERSION} yet")
+            if cat.read_only:
+                raise CatalogError(f"catalogue {display_url(url)} has schema version {found} and is read-only here: "
+                                   "it cannot be brought to this bench's version")
             with cat.transaction(write=True) as conn:
                 migrate(conn, __version__)
     except BaseException:
-        engine.dispose()
+        cat.close()
         raise
     return cat
+
+
+def _sqlite_wal(engine: Engine) -> bool:
+    """Switch a SQLite catalogue to WAL (readers never wait for the writer; kept in the file, so
+    once is enough). False when the file cannot be written (then it is used read-only)."""
+    raw = engine.raw_connection()
+    try:
+        cur = raw.cursor()
+        mode = cur.execute("PRAGMA journal_mode").fetchone()[0]
+        if str(mode).lower() != "wal":
+            cur.execute("PRAGMA journal_mode=WAL")
+        cur.close()
+        return True
+    except Exception as exc:  # noqa: BLE001 - sqlite3.OperationalError
+        if "readonly" in str(exc) or "read-only" in str(exc):
+            return False
+        raise CatalogError(f"catalogue {engine.url.database}: {describe_db_error(exc)}") from None
+    finally:
+        raw.close()

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from bench.params import override_problem
 from bench.errors import InputError, InputErrors, Location
 from bench.inputs import PROCEDURE_ROOTS, confined_path
 from bench.procedure.limits import check_step_limits
@@ -190,7 +191,15 @@ def _build(src: Source, overrides: dict[str, str], kinds: dict[str, str] | None,
             errors.append(InputError(f"no parameter {key!r} in {src.path} (parameters: {known})", None, f"-p {key}"))
     env: dict[str, Node] = {}
     for key, node in doc.parameters.items():
-        env[key] = _as_node(_override_value(overrides[key]), Location(f"-p {key}")) if key in overrides else node
+        if key in overrides:
+            value = _override_value(overrides[key])
+            problem = override_problem(key, node.plain(), value)
+            if problem is not None:  # located at -p NAME, not at a step that uses it
+                errors.append(problem)
+                continue
+        env[key] = _as_node(value, Location(f"-p {key}")) if key in overrides else node
+    if any(e.field and e.field.startswith("-p ") for e in errors):
+        raise InputErrors(errors)
     exp = _Expander(doc, kinds, errors, signals)
     if doc.steps_node is not None and isinstance(doc.steps_node.value, list):
         exp.expand(doc.steps_node.value, env, doc, prefix="", context="", depth=0)

@@ -1,13 +1,17 @@
 """Where a run file goes: refusing a runs directory that cannot take the run, the file name of a
-run, and creating the file under a name that does not exist yet (never overwriting).
+run, and creating the file under a name that does not exist yet (never overwriting). A run's name
+only ever holds a complete, readable file: files are written under hidden names first
+(:func:`create_hidden`, :func:`create_partial`) and linked or moved to it.
 
 Sizes in bytes; start times in UTC.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
+import secrets
 import shutil
 import tempfile
 from datetime import datetime
@@ -83,33 +87,79 @@ def run_file_name(started_utc: datetime, procedure_name: str) -> str:
     return f"{stamp}_{name}{SUFFIX}"
 
 
-def create_new_file(runs_dir: Path, started_utc: datetime, procedure_name: str) -> tuple[h5py.File, Path]:
-    """Create ``runs_dir/<run_file_name>`` with HDF5's exclusive mode, ``_1``, ``_2`` … appended
-    while the name exists; an existing file is never opened. Returns the open file (latest HDF5
-    format, as SWMR needs) and its path. Raises :class:`DestinationError` if the directory cannot
-    take the file, :class:`RecorderError` if HDF5 fails to create it.
-    """
+def create_hidden(runs_dir: Path, label: str) -> tuple[h5py.File, Path]:
+    """A new HDF5 file (latest format, as SWMR needs) under a hidden name of ``runs_dir`` no other
+    process uses (``.<label>.<pid>-<random>.new``), and its path. The run's placeholder is written
+    there and then linked to the run's name (:func:`link_new_name`), so that name never holds a
+    file being written. Raises :class:`DestinationError` if the directory cannot take the file,
+    :class:`RecorderError` if HDF5 fails to create it."""
     runs_dir = Path(runs_dir)
     make_runs_dir(runs_dir)
+    path = runs_dir / f".{label}.{os.getpid()}-{secrets.token_hex(4)}{NEW_SUFFIX}"
+    try:
+        # chunk cache of each dataset: one largest chunk (h5py's default, 8 MiB a dataset, filled as a run
+        # grows and made the peak memory grow with run length, docs/benchmarks.md)
+        return h5py.File(path, "x", libver="latest", rdcc_nbytes=MAX_CHUNK_BYTES), path
+    except PermissionError as exc:
+        raise DestinationError(f"run file {path} cannot be created: {os_reason(exc)}") from None
+    except Exception as exc:  # noqa: BLE001 - h5py raises several types; report them all the same way
+        _remove_new(path)
+        raise RecorderError(f"writing {path} failed: {os_reason(exc)}") from None
+    except BaseException:  # interrupted (KeyboardInterrupt) while HDF5 made the file: it holds nothing
+        _remove_new(path)
+        raise
+
+
+def link_new_name(runs_dir: Path, started_utc: datetime, procedure_name: str, src: Path) -> Path:
+    """Give the complete file ``src`` the run's name ``runs_dir/<run_file_name>`` (``_1``, ``_2`` …
+    appended while the name exists) with a hard link, which fails rather than replace a file: an
+    existing file is never touched. Returns the name. A file system without hard links gets a
+    rename after an existence check instead. :class:`DestinationError` when no name is free."""
     base = run_file_name(started_utc, procedure_name)[: -len(SUFFIX)]
     for n in range(MAX_COLLISIONS):
-        path = runs_dir / (f"{base}{SUFFIX}" if n == 0 else f"{base}_{n}{SUFFIX}")
-        if path.exists():
-            continue
+        path = Path(runs_dir) / (f"{base}{SUFFIX}" if n == 0 else f"{base}_{n}{SUFFIX}")
         try:
-            # chunk cache of each dataset: one largest chunk (h5py's default, 8 MiB a dataset, filled as a run
-            # grows and made the peak memory grow with run length, docs/benchmarks.md)
-            return h5py.File(path, "x", libver="latest", rdcc_nbytes=MAX_CHUNK_BYTES), path
+            os.link(src, path)
+            return path
         except FileExistsError:
             continue
-        except PermissionError as exc:
-            raise DestinationError(f"run file {path} cannot be created: {os_reason(exc)}") from None
-        except Exception as exc:  # noqa: BLE001 - h5py raises several types; report them all the same way
-            raise RecorderError(f"writing {path} failed: {os_reason(exc)}") from None
-        except BaseException:  # interrupted (KeyboardInterrupt) while HDF5 made the file: it holds nothing
-            _remove_new(path)
-            raise
+        except OSError as exc:
+            if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.EXDEV):
+                raise DestinationError(f"run file {path} cannot be created: {os_reason(exc)}") from None
+            if os.path.lexists(path):
+                continue
+            os.rename(src, path)
+            return path
     raise DestinationError(f"no free run-file name for {base} in {runs_dir}")
+
+
+NEW_SUFFIX = ".new"
+
+
+PARTIAL_SUFFIX = ".partial"
+
+
+def partial_path(path: Path) -> Path:
+    """Where the run file ``path`` is set up before it can be read: ``.<name>.partial`` beside it."""
+    return path.with_name(f".{path.name}{PARTIAL_SUFFIX}")
+
+
+def create_partial(path: Path) -> h5py.File:
+    """Create the file that becomes the run file ``path`` once it can be read (:func:`partial_path`),
+    replacing one a killed writer left there (``path`` was just created exclusively by this writer, so
+    nobody else is setting that run up). :class:`RecorderError` if HDF5 fails."""
+    partial = partial_path(path)
+    try:
+        os.unlink(partial)
+    except OSError:
+        pass
+    try:
+        return h5py.File(partial, "x", libver="latest", rdcc_nbytes=MAX_CHUNK_BYTES)
+    except BaseException as exc:
+        _remove_new(partial)
+        if not isinstance(exc, Exception):
+            raise
+        raise RecorderError(f"writing {partial} failed: {os_reason(exc)}") from None
 
 
 def _remove_new(path: Path) -> None:

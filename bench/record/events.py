@@ -14,6 +14,7 @@ import numpy as np
 
 from bench.record import layout
 from bench.record.space import new_chunks
+from bench.redact import redact, redact_bytes
 
 EVENT_CHUNK_ROWS = 1024
 """Rows per chunk of ``/events``."""
@@ -72,12 +73,15 @@ class EventLog:
         """Buffer one event (see :meth:`bench.record.RunRecorder.event`). Raises ``ValueError`` for a
         kind that is not 1-16 ASCII characters or a step outside int32. A run logs every command and
         reply (tens per second of run time): kinds and sources are encoded once and kept."""
+        message = redact(message)  # no credential is stored (bench/redact.py)
+        if data and kind not in layout.TRAFFIC_EVENT_KINDS:  # traffic is kept byte for byte: replay answers it
+            data = redact_bytes(data)
         kind_b = self._kinds.get(kind)
         if kind_b is None:
             kind_b = self._kinds[kind] = _encode_kind(kind)
         source_b = self._sources.get(source)
         if source_b is None:
-            source_b = cut_utf8(source, layout.EVENT_SOURCE_BYTES)
+            source_b = cut_utf8(redact(source), layout.EVENT_SOURCE_BYTES)
             if len(self._sources) < MAX_SOURCES_KEPT:
                 self._sources[source] = source_b
         if not -(2**31) <= step < 2**31:

@@ -69,6 +69,9 @@ ATTR_STATUS = "status"
 ATTR_ABORT_REASON = "abort_reason"
 ATTR_ROWS_TOTAL = "rows_total"
 """Rows over all streams (int64), written when the file is closed."""
+ATTR_DIGEST = "attrs_sha256"
+"""``sha256:<hex>`` of every attribute and text of the file (:mod:`bench.record.digest`), written when
+the file enters SWMR mode and again when it is finalised; absent in files of older versions."""
 
 # unit under test and station (format 1 additions: absent in older files, read as "")
 ATTR_UNIT_SERIAL = "unit_serial"
@@ -79,8 +82,13 @@ ATTR_UNIT_REVISION = "unit_revision"
 """Revision of the unit under test (``--revision``); ``""`` when not given."""
 ATTR_STATION = "station"
 """Name of the test station (lab config ``station:``; default the host name)."""
+ATTR_OPERATOR_ORIGIN = "operator_origin"
+"""Where the operator's name came from: ``cli LOGIN@TTY`` or ``web ADDRESS`` (bench.operators); absent in
+older files, read as ``""``."""
 IDENTITY_ATTRS = (ATTR_UNIT_SERIAL, ATTR_UNIT_PART, ATTR_UNIT_REVISION, ATTR_STATION)
 """Optional root attributes naming what was tested where."""
+CREATION_ATTRS = (*IDENTITY_ATTRS, ATTR_OPERATOR_ORIGIN)
+"""Optional root attributes a run file may be created with (``RunRecorder.create(identity=...)``)."""
 
 # identity of an instrument: attributes of /instruments/<name>. The instrument reports its own
 # (``identify()``: vendor, model, serial, firmware ... free-form); the lab config's declarations sit
@@ -103,8 +111,9 @@ ROOT_ATTRS = (
     ATTR_OPERATOR, ATTR_HOST, ATTR_MODE, ATTR_STARTED_UTC, ATTR_ENDED_UTC, ATTR_STATUS, ATTR_ABORT_REASON,
 )
 """Root attributes written when the file is created, in that order."""
-ROOT_ATTRS_AT_CLOSE = (ATTR_ROWS_TOTAL, ATTR_ENDED_UTC, ATTR_ABORT_REASON, ATTR_STATUS)
-"""Root attributes (re)written when the file is closed, after SWMR mode ended."""
+ROOT_ATTRS_AT_CLOSE = (ATTR_ROWS_TOTAL, ATTR_ENDED_UTC, ATTR_ABORT_REASON, ATTR_STATUS, ATTR_DIGEST)
+"""Root attributes (re)written when the file is closed, after SWMR mode ended (the digest is also
+written when the file enters SWMR mode)."""
 
 UTC_FORMAT = "%Y-%m-%dT%H:%M:%SZ"
 """``strftime`` format of :data:`ATTR_STARTED_UTC` and :data:`ATTR_ENDED_UTC`."""

@@ -29,14 +29,10 @@ from typing import Any, Collection, Iterator
 import h5py
 import numpy as np
 from rich.console import Console
-from rich.table import Table
-from rich.text import Text
 
 from bench.errors import InputError
 from bench.record import layout
-from bench.record.checks import check_counts, check_results, checks_verdict, describe_limits, display_value
 from bench.record.chunks import StreamRows, checksum_state, excluded_rows, is_checksum_failure, read_rows, read_stream_rows
-from bench.termtable import fit_tables
 
 STALE_AFTER_S = 10.0
 """A ``running`` file whose heartbeat is at least this old (s of wall time) reads as ``crashed``."""
@@ -500,6 +496,8 @@ def _unreadable(path: Path, reason: str) -> InputError:
 def _describe(exc: BaseException, path: Path | None = None) -> str:
     """A short reason for an h5py/HDF5 failure (of the file at ``path``, whose size it then gives)."""
     text = str(exc)
+    if isinstance(exc, DamagedFile):
+        return text
     if "already open for write" in text:
         # Set up (before SWMR mode) and finalising (after it) both leave this mark while they run; a
         # writer killed then, or whose last writes failed (a full disk), leaves it for good. Which
@@ -596,7 +594,7 @@ def _summarise(path: Path, f: h5py.File, stale_after_s: float, now_unix: float,
         status=status,
         procedure_text=_read_text(f[layout.PROCEDURE_TEXT], limit),
         config_text=_read_text(f[layout.CONFIG_TEXT], limit),
-        instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in f[layout.INSTRUMENTS].items()},
+        instruments={name: {k: str(_plain(v)) for k, v in g.attrs.items()} for name, g in members(f[layout.INSTRUMENTS])},
         streams=streams,
         steps=_steps(events, live=status == layout.STATUS_RUNNING),
         events=events,
@@ -627,7 +625,7 @@ def _instrument_identities(f: h5py.File, attrs: dict[str, Any], events: list[Eve
             except (ValueError, KeyError, TypeError):
                 continue
     out: dict[str, InstrumentIdentity] = {}
-    for name, g in f[layout.INSTRUMENTS].items():
+    for name, g in members(f[layout.INSTRUMENTS]):
         a = {k: str(_plain(v)) for k, v in g.attrs.items()}
         due = a.get(layout.ATTR_CALIBRATION_DUE, "")
         due_date = _date_of(due)
@@ -675,16 +673,39 @@ def _stream_groups(f: h5py.File) -> dict[str, h5py.Group]:
     """Stream key -> group: the groups under ``/streams`` (one or two levels down) that hold a
     ``time`` dataset."""
     out: dict[str, h5py.Group] = {}
-    for inst, g in f[layout.STREAMS].items():
+    for inst, g in members(f[layout.STREAMS]):
         if not isinstance(g, h5py.Group):
             continue
         if isinstance(g.get(layout.TIME), h5py.Dataset):
             out[layout.stream_key(inst)] = g
             continue
-        for sub, sg in g.items():
+        for sub, sg in members(g):
             if isinstance(sg, h5py.Group) and isinstance(sg.get(layout.TIME), h5py.Dataset):
                 out[layout.stream_key(inst, sub)] = sg
     return out
+
+
+def members(g: h5py.Group) -> list[tuple[str, Any]]:
+    """``(name, object)`` of every member of group ``g``. h5py's ``items()`` gives None for a member
+    it cannot open (a link to nothing, a damaged object header), which later failed as
+    "'NoneType' object has no attribute 'attrs'"; here such a member raises ``ValueError`` naming
+    it and why, which the readers turn into "not a readable bench run file: /instruments/board: ..."."""
+    out = []
+    for name in g:
+        try:
+            obj = g[name]
+        except Exception as exc:  # noqa: BLE001 - KeyError (missing target), OSError (damaged header) ...
+            link = g.get(name, getlink=True)
+            where = f"{g.name.rstrip('/')}/{name}"
+            if isinstance(link, h5py.SoftLink):
+                raise DamagedFile(f"{where} is a link to {link.path}, which does not exist: the file is damaged") from None
+            raise DamagedFile(f"{where} cannot be opened ({_describe(exc)}): the file is damaged") from None
+        out.append((name, obj))
+    return out
+
+
+class DamagedFile(ValueError):
+    """A part of a run file that cannot be read, with a message that says which (shown as it is)."""
 
 
 def _column_order(g: h5py.Group) -> list[str]:
@@ -1066,151 +1087,9 @@ def _iso(unix: float) -> str:
 
 
 # ---- rendering ----------------------------------------------------------------------------------
-_STATUS_STYLE = {layout.STATUS_COMPLETED: "bold green", layout.STATUS_RUNNING: "bold cyan", layout.STATUS_CRASHED: "bold red",
-                 layout.STATUS_WAITING: "bold magenta",
-                 layout.STATUS_ABORTED: "bold red", layout.STATUS_FAILED: "bold red"}
-_OUTCOME_STYLE = {"passed": "green", "done": "green", "failed": "red", "aborted": "red", "interrupted": "yellow", "running": "cyan",
-                  layout.OUTCOME_RECORDED: "blue"}
-
-
-def _identity_rows(summary: RunSummary) -> list[tuple[str, Text | str]]:
-    """Header rows ``unit`` (serial, part, revision) and ``station``; ``-`` when not recorded."""
-    u = summary.identity
-    unit = u.get(layout.ATTR_UNIT_SERIAL, "") or "-"
-    more = [f"{label} {u[key]}" for label, key in (("part", layout.ATTR_UNIT_PART), ("revision", layout.ATTR_UNIT_REVISION)) if u.get(key)]
-    return [("unit", ", ".join([unit, *more])), ("station", u.get(layout.ATTR_STATION, "") or "-")]
-
-
-def _render_instrument_identity(summary: RunSummary, console: Console) -> None:
-    """When the lab config declared any: each instrument's reported and declared serial and
-    firmware, and its calibration due date (``OVERDUE`` if before the run's start date)."""
-    declared = {n: i for n, i in summary.instrument_identity.items() if i.config_serial or i.config_firmware or i.calibration_due}
-    if not declared:
-        return
-    t = Table(title="Instrument identity (reported / lab config)")
-    for col in ("name", "serial", "firmware", "calibration due"):
-        t.add_column(col)
-    for name, i in declared.items():
-        due = Text(i.calibration_due or "-")
-        if i.calibration_overdue:
-            due = Text(f"{i.calibration_due} OVERDUE", style="bold red")
-            if i.overdue_confirmation:
-                due.append(f" confirmed: {i.overdue_confirmation}", style="yellow")
-        t.add_row(Text(name), Text(f"{i.serial or '-'} / {i.config_serial or '-'}"),
-                  Text(f"{i.firmware or '-'} / {i.config_firmware or '-'}"), due)
-    console.print(t)
-
-
-CHECKSUMS_TEXT = {
-    "all": "Fletcher-32 on every stream and event chunk, not read by this summary (bench inspect --verify reads them all)",
-    "some": "Fletcher-32 on some datasets only (bench inspect --verify)",
-    "none": "none: written before checksums, the data cannot be verified",
-}
-"""What the ``checksums`` row of ``bench inspect`` says for :attr:`RunSummary.checksums`."""
-
-
-def _checksum_rows(summary: RunSummary) -> list[tuple[str, Text | str]]:
-    """Header rows: whether the file has checksums, and every stream whose first or last run time
-    failed its checksum while summarising."""
-    rows: list[tuple[str, Text | str]] = []
-    if summary.checksums:
-        rows.append(("checksums", Text(CHECKSUMS_TEXT.get(summary.checksums, summary.checksums),
-                                       style="yellow" if summary.checksums != "all" else "")))
-    for s in summary.streams:
-        if s.damage:
-            rows.append(("damaged", Text(f"stream {s.key}: {s.damage} (bench inspect --verify lists every damaged chunk)",
-                                         style="bold red")))
-    return rows
-
-
 def render_summary(summary: RunSummary, console: Console, max_events: int = 40, traffic: bool = False) -> None:
-    """Print the run as rich tables: header (status ``waiting`` while a live run waits for the
-    operator), instruments, streams, steps, checks (value with units, limits, outcome), the
-    instrument traffic summarised per instrument, and the last ``max_events`` other events with
-    counts by kind (``traffic``: list the ``command``/``reply`` events too)."""
-    a = summary.attrs
-    head = Table.grid(padding=(0, 2))
-    head.add_column(style="bold")
-    head.add_column()
-    status = Text(summary.live_status, style=_STATUS_STYLE.get(summary.live_status, "bold"))
-    if summary.status_detail:
-        status.append(f"  {summary.status_detail}", style="dim" if summary.status == layout.STATUS_RUNNING else "red")
-    rows: list[tuple[str, Text | str]] = [
-        ("procedure", f"{a.get(layout.ATTR_PROCEDURE_NAME, '')} ({a.get(layout.ATTR_PROCEDURE_PATH, '')})"),
-        ("file", str(summary.path)),
-        ("status", status),
-        ("started", str(a.get(layout.ATTR_STARTED_UTC, ""))),
-        ("ended", str(a.get(layout.ATTR_ENDED_UTC, "")) or "-"),
-        ("mode", str(a.get(layout.ATTR_MODE, ""))),
-        ("operator", str(a.get(layout.ATTR_OPERATOR, ""))),
-        ("host", str(a.get(layout.ATTR_HOST, ""))),
-        ("software", f"bench {a.get(layout.ATTR_SOFTWARE_VERSION, '')}, run-file format {a.get(layout.ATTR_FORMAT_VERSION, '')}"),
-        ("config", str(a.get(layout.ATTR_CONFIG_PATH, ""))),
-    ]
-    rows += _identity_rows(summary)
-    if summary.abort_reason:
-        rows.append(("abort reason", Text(summary.abort_reason, style="red")))
-    for w in summary.warnings:
-        rows.append(("warning", Text(w, style="yellow")))
-    rows += _checksum_rows(summary)
-    for k, v in rows:
-        head.add_row(k, v if isinstance(v, Text) else Text(v))
-    console.print(head)
-    _render_instrument_identity(summary, console)
+    """Print the run as ``bench inspect`` does (:func:`bench.inspect_view.render_summary`, where the
+    terminal view of a run lives)."""
+    from bench.inspect_view import render_summary as render
 
-    def show(headers: list[str], rows: list[list[str | Text]], title: str, prose: tuple[int, ...] = (), key: int = 1) -> None:
-        for t in fit_tables(headers, rows, console.width, title=title, key=key, prose=prose):
-            console.print(t)
-
-    if summary.instruments:
-        show(["name", "identity"], [[name, ", ".join(f"{k}={v}" for k, v in info.items())] for name, info in summary.instruments.items()],
-             "Instruments", prose=(1,))
-
-    if summary.streams:
-        rows = []
-        for s in summary.streams:
-            span = f"{s.t_start_s:.3f} .. {s.t_end_s:.3f}" if s.t_start_s is not None and s.t_end_s is not None else "-"
-            rate = f"{s.rate_hz:.2f}" if s.rate_hz is not None else "-"
-            cols = ", ".join(f"{n}{list(s.shapes[n]) if s.shapes.get(n) else ''} ({u})" for n, u in s.columns.items())
-            rows.append([s.key, str(s.rows), span, rate, cols])
-        show(["stream", "rows", "time span s", "rate Hz", "columns (units)"], rows, "Streams", prose=(4,))
-
-    if summary.steps:
-        show(["#", "step", "type", "outcome", "duration s", "detail"],
-             [[str(s.index + 1), s.name, s.type, Text(s.outcome, style=_OUTCOME_STYLE.get(s.outcome, "")),
-               f"{s.duration_s:.1f}" if s.duration_s is not None else "-", s.detail] for s in summary.steps],
-             "Steps", prose=(1, 5))
-
-    checks = check_results(summary)
-    if checks:
-        rows = []
-        for c in checks:
-            value, units = display_value(c.statistic, c.value, c.units)
-            rows.append([str(c.step + 1), c.name, c.signal, c.statistic, c.window, "-" if value is None else f"{value:.6g}", units,
-                         describe_limits(c), Text(c.outcome, style=_OUTCOME_STYLE.get(c.outcome, ""))])
-        show(["#", "check", "signal", "statistic", "window", "value", "units", "limits", "outcome"], rows,
-             f"Checks: {checks_verdict(check_counts(c.outcome for c in checks))}", prose=(7,), key=2)
-
-    if summary.traffic:
-        show(["instrument traffic"], [[tr.describe()] for tr in summary.traffic.values()],
-             "Instrument traffic (command and reply events, kept for replay; --traffic lists them)", prose=(0,))
-
-    listed = summary.events if traffic else summary.meaningful_events
-    n = sum(summary.event_counts.values()) if traffic else sum(
-        v for k, v in summary.event_counts.items() if k not in layout.TRAFFIC_EVENT_KINDS)
-    shown = listed[-max_events:] if max_events > 0 else []
-    counts = ", ".join(f"{k} {v:,}" for k, v in sorted(summary.event_counts.items()))
-    what = "events" if traffic else "events other than instrument traffic"
-    rows = []
-    for e in shown:
-        row = [f"{e.t_s:.3f}", Text(e.kind, style="red" if e.kind in ("error", "fault", "abort") else ""), e.source,
-               str(e.step + 1) if e.step >= 0 else "", e.message]
-        if traffic:  # the frames' bytes (the other events' data is JSON for programs: --json, replay)
-            row.append(e.data[:EVENT_DATA_SHOWN].hex(" ") + (f" (+{len(e.data) - EVENT_DATA_SHOWN} B)" if len(e.data) > EVENT_DATA_SHOWN else ""))
-        rows.append(row)
-    show(["t s", "kind", "source", "step", "message"] + (["data"] if traffic else []), rows,
-         f"Events (last {len(shown)} of {n:,} {what}; {counts or 'none'})", prose=(4, 5))
-
-
-EVENT_DATA_SHOWN = 16
-"""Bytes of an event's data ``bench inspect --traffic`` shows (in hex), the rest counted."""
+    render(summary, console, max_events=max_events, traffic=traffic)

@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 
 from bench.record import layout
+from bench.redact import redact
 from bench.record.events import create_event_datasets
 
 HEARTBEAT_UNITS = "s"
@@ -39,24 +40,21 @@ def write_skeleton(
     """Write everything a run file holds from its creation: root attributes (``status`` running,
     ``ended_utc`` and ``abort_reason`` empty; the ``identity`` attributes given, see
     :data:`layout.IDENTITY_ATTRS`), texts, the empty instrument and stream groups, the
-    empty event datasets and the heartbeat ([now, 0 s]). ``operator`` defaults to the login name."""
+    empty event datasets and the heartbeat ([now, 0 s]). ``operator`` defaults to the login name.
+    Every text goes through :func:`bench.redact.redact` first: no credential is stored."""
     a = f.attrs
     a[layout.ATTR_FORMAT_VERSION] = np.int64(layout.FORMAT_VERSION)
-    a[layout.ATTR_SOFTWARE_VERSION] = str(software_version)
-    a[layout.ATTR_PROCEDURE_NAME] = str(procedure_name)
-    a[layout.ATTR_PROCEDURE_PATH] = str(procedure_path)
-    a[layout.ATTR_CONFIG_PATH] = str(config_path)
-    a[layout.ATTR_OPERATOR] = operator if operator is not None else login_name()
-    a[layout.ATTR_HOST] = socket.gethostname()
-    a[layout.ATTR_MODE] = mode
-    a[layout.ATTR_STARTED_UTC] = layout.utc_text(started)
-    a[layout.ATTR_ENDED_UTC] = ""
-    a[layout.ATTR_STATUS] = layout.STATUS_RUNNING
-    a[layout.ATTR_ABORT_REASON] = ""
-    for key, value in (identity or {}).items():
-        a[key] = str(value)
-    write_text(f.create_group(layout.PROCEDURE), procedure_text)
-    write_text(f.create_group(layout.CONFIG), config_text)
+    texts = {
+        layout.ATTR_SOFTWARE_VERSION: software_version, layout.ATTR_PROCEDURE_NAME: procedure_name,
+        layout.ATTR_PROCEDURE_PATH: procedure_path, layout.ATTR_CONFIG_PATH: config_path,
+        layout.ATTR_OPERATOR: operator if operator is not None else login_name(), layout.ATTR_HOST: socket.gethostname(),
+        layout.ATTR_MODE: mode, layout.ATTR_STARTED_UTC: layout.utc_text(started), layout.ATTR_ENDED_UTC: "",
+        layout.ATTR_STATUS: layout.STATUS_RUNNING, layout.ATTR_ABORT_REASON: "", **(identity or {}),
+    }
+    for key, value in texts.items():
+        a[key] = redact(str(value))
+    write_text(f.create_group(layout.PROCEDURE), redact(procedure_text))
+    write_text(f.create_group(layout.CONFIG), redact(config_text))
     f.create_group(layout.INSTRUMENTS)
     f.create_group(layout.STREAMS)
     create_event_datasets(f)
@@ -77,7 +75,7 @@ def write_identity(f: h5py.File, name: str, info: dict[str, str]) -> None:
     """``/instruments/<name>`` with the identity strings as attributes, in the order given."""
     g = f[layout.INSTRUMENTS].create_group(name, track_order=True)
     for k, v in info.items():
-        g.attrs[str(k)] = str(v)
+        g.attrs[str(k)] = redact(str(v))
 
 
 def login_name() -> str:

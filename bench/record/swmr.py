@@ -18,6 +18,8 @@ import h5py
 import numpy as np
 
 from bench.record import layout
+from bench.record.digest import write_digest
+from bench.redact import redact
 from bench.record.streams import StreamTable
 
 LOCK_RETRY_S = 5.0
@@ -46,8 +48,9 @@ def finalise_status(path: Path, streams: Iterable[StreamTable], status: str, abo
         total = sum(st.finalise(f) for st in streams)
         f.attrs[layout.ATTR_ROWS_TOTAL] = np.int64(total)
         f.attrs[layout.ATTR_ENDED_UTC] = layout.utc_text(datetime.now(timezone.utc))
-        f.attrs[layout.ATTR_ABORT_REASON] = str(abort_reason)
+        f.attrs[layout.ATTR_ABORT_REASON] = redact(str(abort_reason))
         f.attrs[layout.ATTR_STATUS] = status
+        write_digest(f)
 
 
 def keep_alive(objs: Iterable[object]) -> None:

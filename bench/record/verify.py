@@ -3,8 +3,11 @@ Fletcher-32 checksum, and for chunks zeroed on disk (:mod:`bench.record.chunks`)
 
 Each stream, ``/events`` and ``/events_blob`` is ``verified`` (every chunk checked and intact),
 ``failed`` (the row ranges of the damaged chunks, with their run times) or ``unverified`` (a
-dataset without checksums: a file written before them). The datasets too small to chunk (the
-procedure and config texts, the heartbeat) carry no checksum and are listed as not checked.
+dataset without checksums: a file written before them). The attributes (status, procedure name,
+start time, identities, units ...) and the procedure and config texts are checked against the
+file's SHA-256 digest (:mod:`bench.record.digest`): a file without one (older versions) lists them
+among what was not checked. The heartbeat carries no checksum and is listed as not checked. A file
+shorter than HDF5 says (truncated) fails, whatever its chunks say.
 
 Units: run times in s; rows of ``/events_blob`` are bytes.
 """
@@ -20,6 +23,7 @@ import numpy as np
 
 from bench.record import layout
 from bench.record.chunks import BadChunk, ChunkMap, ExcludedRows, excluded_rows, find_damage, has_checksum
+from bench.record.digest import check_digest
 from bench.record.reader import _checked_rows, _column_order, _open_run, _size_limit, _stream_groups, event_datasets
 
 VERIFIED, FAILED, UNVERIFIED = "verified", "failed", "unverified"
@@ -61,12 +65,20 @@ class FileCheck:
     parts: list[PartCheck]
     not_checked: list[str]
     warnings: list[str] = field(default_factory=list)
+    attributes: str = "absent"
+    """The attributes and texts against the file's digest: ``verified``, ``changed``, ``absent`` (no
+    digest: an older file), or why they could not be read."""
+    truncated: str = ""
+    """Why the file is shorter than HDF5 says (a truncated file), else ``""``."""
 
     @property
     def status(self) -> str:
-        """``failed`` if any chunk is damaged, else ``unverified`` if any part has no checksums, else ``verified``."""
+        """``failed`` if any chunk is damaged, the attributes changed or the file is truncated, else
+        ``unverified`` if any part has no checksums, else ``verified``."""
         states = {p.status for p in self.parts}
-        return FAILED if FAILED in states else (UNVERIFIED if UNVERIFIED in states or not self.parts else VERIFIED)
+        if FAILED in states or self.truncated or self.attributes not in ("verified", "absent"):
+            return FAILED
+        return UNVERIFIED if UNVERIFIED in states or not self.parts else VERIFIED
 
     @property
     def chunks(self) -> int:
@@ -83,6 +95,10 @@ def verify_run_file(path: Path) -> FileCheck:
     metadata included)."""
     path = Path(path)
     with _open_run(path) as (f, warnings):
+        try:
+            attributes = check_digest(f)
+        except Exception as exc:  # noqa: BLE001 - a damaged attribute makes h5py raise anything
+            attributes = f"unreadable ({type(exc).__name__}: {exc})"
         limit = _size_limit(path)
         chunks = ChunkMap(f, path)
         groups = {key: {n: g[n] for n in _column_order(g)} for key, g in _stream_groups(f).items()}
@@ -91,9 +107,12 @@ def verify_run_file(path: Path) -> FileCheck:
         parts.append(_check_part(events.name, "events", {events.name: events}, limit, chunks, time_field="t_s"))
         parts.append(_check_part(blob.name, "events", {blob.name: blob}, limit, chunks))
         checked = {events.name, blob.name} | {ds.name for datasets in groups.values() for ds in datasets.values()}
-        rest: list[str] = []
+        if attributes != "absent":
+            checked |= {layout.absolute(layout.PROCEDURE_TEXT), layout.absolute(layout.CONFIG_TEXT)}
+        rest: list[str] = [] if attributes != "absent" else ["the attributes (no digest: a file of an older bench)"]
         f.visititems(lambda _n, obj: rest.append(obj.name) if isinstance(obj, h5py.Dataset) and obj.name not in checked else None)
-        return FileCheck(path, parts, sorted(rest), list(warnings))
+        truncated = next((w for w in warnings if "truncated" in w), "")
+        return FileCheck(path, parts, sorted(rest), list(warnings), attributes, truncated)
 
 
 def _check_part(name: str, kind: str, datasets: dict[str, h5py.Dataset], limit: int, chunks: ChunkMap,
@@ -122,7 +141,11 @@ def render_verification(check: FileCheck) -> list[str]:
     """The lines ``bench inspect --verify`` prints: a verdict, one line per stream and event
     dataset, each damaged range under its part, and the datasets not checked."""
     total = check.chunks
-    if check.status == FAILED:
+    if check.truncated:
+        head = f"FAILED: the file is truncated ({check.damaged_chunks:,} of {total:,} chunks damaged)"
+    elif check.status == FAILED and not check.damaged_chunks:
+        head = "FAILED: the attributes or texts changed since they were written (their SHA-256 digest differs)"
+    elif check.status == FAILED:
         head = f"FAILED: {check.damaged_chunks:,} of {total:,} chunks damaged"
     elif check.status == UNVERIFIED:
         plain = [p.name for p in check.parts if p.status == UNVERIFIED]
@@ -130,13 +153,19 @@ def render_verification(check: FileCheck) -> list[str]:
                 "(written before checksums); their data cannot be verified")
     else:
         head = f"verified: all {total:,} chunks pass their Fletcher-32 checksums"
+        if check.attributes == "verified":
+            head += ", the attributes and texts their SHA-256 digest"
     lines = [f"{check.path}: {head}"]
     lines += [f"  warning: {w}" for w in check.warnings]
-    width = max((len(_label(p)) for p in check.parts), default=0)
+    label = "attributes and texts"
+    width = max([len(_label(p)) for p in check.parts] + [len(label)])
     for p in check.parts:
         lines.append(f"  {_label(p):<{width}}  {p.rows:>12,} {p.unit:<5}  {p.chunks:>7,} chunks  {p.status.upper() if p.status == FAILED else p.status}")
         for d in p.damage:
             lines.append(f"      {d.rows_text(p.unit)}: {d.reason}")
+    if check.attributes != "absent":
+        shown = "CHANGED" if check.attributes == "changed" else check.attributes
+        lines.append(f"  {label:<{width}}  {'':>12} {'':<5}  {'SHA-256':>14}  {shown}")
     if check.not_checked:
         lines.append(f"  not checked (not chunked, no checksum): {', '.join(check.not_checked)}")
     return lines
@@ -161,6 +190,8 @@ def verification_json(check: FileCheck) -> dict[str, Any]:
         "damaged_chunks": check.damaged_chunks,
         "streams": [part(p) for p in check.parts if p.kind == "stream"],
         "events": [part(p) for p in check.parts if p.kind == "events"],
+        "attributes": check.attributes,
+        "truncated": check.truncated,
         "not_checked": check.not_checked,
         "warnings": check.warnings,
     })

@@ -2,7 +2,13 @@
 
 The whole file layout (root attributes, texts, instrument groups, stream datasets, events table,
 heartbeat; names in :mod:`bench.record.layout`) is created first; :meth:`RunRecorder.start` then
-switches the file to HDF5 SWMR (single-writer/multiple-reader) mode. From then on the recorder only
+switches the file to HDF5 SWMR (single-writer/multiple-reader) mode. Until then HDF5 marks the file
+open for writing and no reader can open it, so it is set up under a hidden name
+(``.<name>.partial``, :func:`~bench.record.destination.partial_path`) and moved over its final name
+at :meth:`RunRecorder.start` (or at :meth:`RunRecorder.close` for a run that ends before): under its
+final name a run file can always be read. That name holds, from the creation on, a placeholder: the
+same skeleton, closed (status ``running``, no streams), which a writer killed during the setup leaves
+behind and readers report as crashed. From then on the recorder only
 resizes and writes existing chunked datasets, which HDF5 keeps consistent on disk at every flush: a
 process killed with SIGKILL leaves a file that opens and holds everything up to the last flush (at
 most ``flush_interval_s`` of wall time old). The final status is written after the SWMR file is
@@ -37,7 +43,9 @@ import numpy as np
 
 from bench.errors import RecorderError
 from bench.record import layout
-from bench.record.destination import SPACE_MARGIN_BYTES, check_destination, create_new_file, run_file_name
+from bench.record.destination import (SPACE_MARGIN_BYTES, check_destination, create_hidden, create_partial, link_new_name, partial_path,
+                                      run_file_name)
+from bench.record.digest import write_digest
 from bench.record.events import BLOB_CHUNK_BYTES, EVENT_CHUNK_ROWS, EventLog
 from bench.record.layout import EVENT_DTYPE, EVENT_KINDS, FORMAT_VERSION, MODES, STATUSES_FINAL
 from bench.record.reasons import mb, os_reason
@@ -76,9 +84,10 @@ class RunRecorder:
     path: Path
 
     def __init__(self, path: Path, file: h5py.File, flush_interval_s: float, wall_clock: Callable[[], float],
-                 reserve: SpaceReserve | None = None):
+                 reserve: SpaceReserve | None = None, writing: Path | None = None):
         """Use :meth:`create`."""
         self.path = path
+        self._writing = writing if writing is not None else path  # where the file is until it is published at self.path
         self._reserve = reserve
         self.flush_interval_s = float(flush_interval_s)
         self._f: h5py.File | None = file
@@ -131,35 +140,49 @@ class RunRecorder:
         ``operator`` defaults to the login name; ``started_utc`` to now. ``flush_interval_s`` is
         wall time (s) between flushes triggered by :meth:`tick`, measured with ``wall_clock``
         (seconds, monotonic). ``identity``: root attributes naming the unit under test and the
-        station (keys of :data:`~bench.record.layout.IDENTITY_ATTRS`; only those given are written).
+        station, and where the operator's name came from (keys of :data:`~bench.record.layout.CREATION_ATTRS`; only
+        those given are written).
         Raises :class:`DestinationError` if the directory cannot take the file,
         :class:`RecorderError` if writing it fails, ``ValueError`` for a bad ``mode`` or identity key.
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
-        unknown = sorted(set(identity or {}) - set(layout.IDENTITY_ATTRS))
+        unknown = sorted(set(identity or {}) - set(layout.CREATION_ATTRS))
         if unknown:
-            raise ValueError(f"identity keys must be among {', '.join(layout.IDENTITY_ATTRS)}, got {', '.join(unknown)}")
+            raise ValueError(f"identity keys must be among {', '.join(layout.CREATION_ATTRS)}, got {', '.join(unknown)}")
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s!r}")
         started = layout.as_utc(started_utc or datetime.now(timezone.utc))
-        f, path = create_new_file(Path(runs_dir), started, procedure_name)
+        runs_dir = Path(runs_dir)
+        placeholder, hidden = create_hidden(runs_dir, run_file_name(started, procedure_name))
         reserve: SpaceReserve | None = None
+        f: h5py.File | None = None
+        path = hidden
+        made = [hidden]
         try:
+            skeleton = dict(procedure_name=procedure_name, procedure_text=procedure_text, procedure_path=procedure_path,
+                            config_text=config_text, config_path=config_path, mode=mode, operator=operator,
+                            software_version=software_version, started=started, identity=identity)
+            write_skeleton(placeholder, **skeleton)
+            write_digest(placeholder)
+            placeholder.close()
+            path = link_new_name(runs_dir, started, procedure_name, hidden)  # the name, taken exclusively, readable at once
+            made = [hidden, path, partial_path(path)]
+            if hidden.exists():  # (a file system without hard links renamed it)
+                os.unlink(hidden)
             try:
                 reserve = SpaceReserve.create(path, RESERVE_BYTES)
             except OSError as exc:
                 raise RecorderError(f"writing {path} failed: disk nearly full: no room for the {mb(RESERVE_BYTES)} "
                                     f"kept to finalise the file ({os_reason(exc)})") from None
-            write_skeleton(f, procedure_name=procedure_name, procedure_text=procedure_text, procedure_path=procedure_path,
-                           config_text=config_text, config_path=config_path, mode=mode, operator=operator,
-                           software_version=software_version, started=started, identity=identity)
+            f = create_partial(path)
+            write_skeleton(f, **skeleton)
         except BaseException as exc:  # also KeyboardInterrupt: a half-made file holds nothing recorded
-            _discard_new_file(f, path, reserve)
+            _discard_new_file([placeholder, f], made, reserve)
             if isinstance(exc, RecorderError) or not isinstance(exc, Exception):
                 raise
             raise RecorderError(f"writing {path} failed: {os_reason(exc)}") from None
-        return cls(path, f, flush_interval_s, wall_clock, reserve)
+        return cls(path, f, flush_interval_s, wall_clock, reserve, writing=partial_path(path))
 
     def add_instrument(self, name: str, info: dict[str, str]) -> None:
         """Record an instrument's identity (vendor, model, serial, firmware, transport, port …)
@@ -194,10 +217,12 @@ class RunRecorder:
         f = self._file()
         self._hold_reserve()
         with self._io():
+            write_digest(f)  # attributes cannot change in SWMR mode: this one holds until the file is finalised
             f.flush()
             f.swmr_mode = True
         self._started = True
         self.flush()
+        self._publish()
 
     # ---- recording ------------------------------------------------------------------------
     def append(self, stream_key: str, time_s: np.ndarray, **columns: np.ndarray) -> None:
@@ -363,9 +388,10 @@ class RunRecorder:
             abort_reason = f"writing the run file failed: {self._failure}"
         self._check_room_to_finalise(status)
         try:
-            finalise_status(self.path, self._streams.values(), status, abort_reason)
+            finalise_status(self._writing, self._streams.values(), status, abort_reason)
         except Exception as exc:  # noqa: BLE001 - h5py raises several types
             raise RecorderError(f"writing {self.path} failed: finalising status {status!r}: {os_reason(exc)}") from None
+        self._publish()  # a run that ended before start(): its file, finalised, replaces the placeholder
         self._state = "closed"
         if flush_error is not None or downgraded:
             raise RecorderError(f"writing {self.path} failed: {self._failure}; the file was closed with status {status!r}")
@@ -383,6 +409,18 @@ class RunRecorder:
             self.close(layout.STATUS_COMPLETED)
 
     # ---- internals ------------------------------------------------------------------------
+    def _publish(self) -> None:
+        """Move the file set up under its hidden name over the placeholder at :attr:`path` (atomic:
+        a reader opens either the placeholder or the whole file). :class:`RecorderError` if it fails."""
+        if self._writing == self.path:
+            return
+        try:
+            os.replace(self._writing, self.path)
+        except OSError as exc:
+            self._failure = self._failure or f"moving {self._writing.name} to its name: {os_reason(exc)}"
+            raise RecorderError(f"writing {self.path} failed: {self._failure}") from None
+        self._writing = self.path
+
     def _file(self) -> h5py.File:
         if self._f is None:
             raise ValueError(f"recorder for {self.path} is closed")
@@ -494,7 +532,7 @@ class RunRecorder:
 
     def _space_problem(self, need: int) -> str:
         """Why ``need`` more bytes might not fit in the file (free space, ``ulimit -f``), or ""."""
-        return space_problem(self.path, need, self.free_bytes)
+        return space_problem(self._writing, need, self.free_bytes)
 
     def _hold_reserve(self) -> None:
         """Grow the space reserve to :meth:`reserve_bytes` now that the streams are known; a disk
@@ -546,16 +584,19 @@ class RunRecorder:
             raise RecorderError(f"writing {self.path} failed: {self._failure}")
 
 
-def _discard_new_file(f: h5py.File, path: Path, reserve: SpaceReserve | None) -> None:
+def _discard_new_file(files: list[h5py.File | None], paths: list[Path], reserve: SpaceReserve | None) -> None:
     """Close and delete a run file whose creation failed or was interrupted (it holds nothing
-    recorded), and its reserve."""
-    try:
-        f.close()
-    except Exception:  # noqa: BLE001 - already reporting the first failure
-        pass
-    try:
-        os.unlink(path)
-    except OSError:
-        pass
+    recorded): its placeholder and its partial file, and its reserve."""
+    for f in files:
+        try:
+            if f is not None:
+                f.close()
+        except Exception:  # noqa: BLE001 - already reporting the first failure
+            pass
+    for path in paths:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
     if reserve is not None:
         reserve.release()

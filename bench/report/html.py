@@ -9,7 +9,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import math
 from dataclasses import dataclass
 from typing import Any, Iterable
 
@@ -17,6 +16,8 @@ import matplotlib
 
 matplotlib.use("Agg")  # no display on test benches' CI machines; must precede pyplot imports
 import matplotlib.pyplot as plt  # noqa: E402
+
+from bench.quantity_format import fmt_hms, fmt_number  # noqa: E402
 
 STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;color:#222}
@@ -27,6 +28,9 @@ td.l,th.l{text-align:left}.pass{color:#060;font-weight:600}.fail{color:#b00;font
 .warn{color:#a60;font-weight:600}
 .note{color:#555;font-size:.9em}.verdict{font-size:1.6em;margin:.3em 0}figure{margin:1em 0}figcaption{color:#555;font-size:.9em}
 img{max-width:100%}
+.banner{background:#ffd54f;border:3px solid #8a6d00;color:#3a2d00;font-size:1.35em;font-weight:700;padding:.5em .8em;margin:0 0 1em 0}
+.watermark::before{content:attr(data-mode);position:fixed;top:40%;left:8%;font-size:9em;font-weight:800;color:rgba(160,120,0,.13);
+transform:rotate(-24deg);pointer-events:none;z-index:0;white-space:nowrap}
 """
 
 
@@ -46,19 +50,17 @@ def figure_png(fig: "plt.Figure", caption: str = "", dpi: int = 110) -> str:
 
 
 def fmt(value: Any, digits: int = 4) -> str:
-    """Numbers with ``digits`` significant digits, everything else as text."""
+    """Numbers with ``digits`` significant digits (:func:`bench.quantity_format.fmt_number`, the one
+    formatter of every view), everything else as text."""
     if isinstance(value, float):
-        return f"{value:.{digits}g}"
+        return fmt_number(value, digits)
     return "" if value is None else str(value)
 
 
 def hms(seconds: float | None) -> str:
     """A run time or duration ``seconds`` (s) as ``H:MM:SS``, rounded to the second (the report's one
     presentation of run time); ``-`` for None or NaN."""
-    if seconds is None or not math.isfinite(seconds):
-        return "-"
-    s = int(round(seconds))
-    return f"{'-' if s < 0 else ''}{abs(s) // 3600}:{abs(s) // 60 % 60:02d}:{abs(s) % 60:02d}"
+    return fmt_hms(seconds)
 
 
 def table(headers: list[str], rows: Iterable[Iterable[Any]], title: str = "", left: int = 1) -> str:
@@ -85,9 +87,14 @@ def _td(c: Any, left: bool) -> str:
     return f"<td{attr}>{esc(fmt(c.value if isinstance(c, Cell) else c))}</td>"
 
 
-def page(title: str, sections: Iterable[tuple[str, str]], subtitle: str = "") -> str:
-    """A whole HTML document: ``sections`` are (heading, inner HTML) pairs."""
+def page(title: str, sections: Iterable[tuple[str, str]], subtitle: str = "", banner: str = "", watermark: str = "") -> str:
+    """A whole HTML document: ``sections`` are (heading, inner HTML) pairs. ``banner``: a line above
+    everything (a run that is not on real instruments: :func:`bench.run_mode.banner`), repeated at
+    the end; ``watermark``: a word printed faintly across every screen and printed page."""
     parts = [f"<h2>{esc(h)}</h2>\n{body}" for h, body in sections]
     sub = f'<p class="note">{esc(subtitle)}</p>' if subtitle else ""
+    top = f'<div class="banner" id="mode-banner">{esc(banner)}</div>' if banner else ""
+    bottom = f'<div class="banner">{esc(banner)}</div>' if banner else ""
+    body = f' class="watermark" data-mode="{esc(watermark)}"' if watermark else ""
     return (f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{esc(title)}</title>"
-            f"<style>{STYLE}</style></head><body><h1>{esc(title)}</h1>{sub}\n" + "\n".join(parts) + "</body></html>\n")
+            f"<style>{STYLE}</style></head><body{body}>{top}<h1>{esc(title)}</h1>{sub}\n" + "\n".join(parts) + f"{bottom}</body></html>\n")

@@ -41,7 +41,11 @@ from bench.record.checks import (CheckResult, check_results, display_value, proc
 from bench.record.reader import RunSummary, read_run_summary, read_stream
 from bench.report import figures as F
 from bench.report import static as S
+from bench.operators import describe as describe_operator
+from bench.quantity_format import fmt_quantity, fmt_range
 from bench.report.html import Cell, esc, figure_png, fmt, hms, page, table
+from bench.run_mode import banner, is_evidence, mode_word
+from bench.terminal_text import printable
 
 ANALYSES: dict[str, tuple[str, str]] = {
     "thermal": ("bench.analysis.thermal_cal", "thermal calibration"),
@@ -113,7 +117,10 @@ def build_report(run_path: str | Path) -> str:
         shown.append(("Not applicable to this run", section_not_applicable(omitted)))
     name = str(summary.attrs.get(layout.ATTR_PROCEDURE_NAME, "")) or path.stem
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-    return page(f"Run report: {name}", shown, subtitle=f"{path.name}; report generated {generated} by bench {__version__}")
+    mode = str(summary.attrs.get(layout.ATTR_MODE, ""))
+    title = f"Run report: {name}" + ("" if is_evidence(mode) else f" ({mode_word(mode)})")
+    return page(title, shown, subtitle=f"{printable(path.name)}; report generated {generated} by bench {__version__}",
+                banner=banner(mode), watermark="" if is_evidence(mode) else mode_word(mode))
 
 
 def report_sections(summary: RunSummary, data: "RunData", ds: Any, ds_note: str) -> list[Section]:
@@ -365,8 +372,13 @@ def section_verdict(summary: RunSummary, checks: list["CheckResult"]) -> str:
     """The verdict with its reasons, then one row per check (and built-in test): name, signal,
     statistic, window, value with its unit, limits, outcome."""
     v = run_verdict(summary, checks)
-    out = f'<p class="verdict {_VERDICT_CLASS[v.word]}" id="verdict">{esc(v.word)}</p>'
-    out += "<ul>" + "".join(f"<li>{esc(r)}</li>" for r in v.reasons) + "</ul>"
+    mode = str(summary.attrs.get(layout.ATTR_MODE, ""))
+    evidence = is_evidence(mode)
+    word = v.word if evidence else f"{v.word} ({mode_word(mode)})"
+    css = _VERDICT_CLASS[v.word] if evidence or v.word != "PASSED" else "warn"  # a simulated pass is never green
+    out = f'<p class="verdict {css}" id="verdict">{esc(word)}</p>'
+    reasons = ([] if evidence else [banner(mode)]) + v.reasons
+    out += "<ul>" + "".join(f"<li>{esc(r)}</li>" for r in reasons) + "</ul>"
     if not checks:
         return out
     rows = []
@@ -375,8 +387,10 @@ def section_verdict(summary: RunSummary, checks: list["CheckResult"]) -> str:
         val, u = display_value(c.statistic, c.value, units)
         lo = display_value(c.statistic, c.minimum, units)[0]
         hi = display_value(c.statistic, c.maximum, units)[0]
-        value = f"{fmt(val)} {u}".strip() if val is not None else "-"
+        value = fmt_quantity(val, u)
         outcome = Cell("recorded (no limits: no verdict)", "") if c.outcome == NO_VERDICT else _outcome(c.outcome)
+        if not evidence and c.outcome == "passed":
+            outcome = Cell(f"passed ({mode_word(mode).lower()})", "warn")
         rows.append([c.step + 1, c.name, c.signal, c.statistic, c.window, value, limits_text(lo, hi, u, c.reference), outcome])
     return out + table(["#", "check", "signal", "statistic", "window", "value", "limits", "outcome"], rows, left=5)
 
@@ -384,16 +398,9 @@ def section_verdict(summary: RunSummary, checks: list["CheckResult"]) -> str:
 def limits_text(lo: float | None, hi: float | None, units: str, reference: str | None = None) -> str:
     """Limits of a check in display units: ``lo … hi units``, ``≥ lo``, ``≤ hi``, ``none``; a
     comparison with an earlier check names it (its tolerance is not recorded in the run file)."""
-    u = f" {units}" if units else ""
     if reference:
         return f"vs {reference} (tolerance: procedure parameters)"
-    if lo is not None and hi is not None:
-        return f"{fmt(lo)} … {fmt(hi)}{u}"
-    if lo is not None:
-        return f"≥ {fmt(lo)}{u}"
-    if hi is not None:
-        return f"≤ {fmt(hi)}{u}"
-    return "none"
+    return fmt_range(lo, hi, units)
 
 
 def section_summary(summary: RunSummary) -> str:
@@ -416,9 +423,9 @@ def section_summary(summary: RunSummary) -> str:
         rows.append(["warning", Cell(w, "warn")])
     mode = str(a.get(layout.ATTR_MODE, ""))
     rows += [
-        ["mode", {layout.MODE_SIM: "sim (dry-run, simulated instruments)", layout.MODE_HARDWARE: "hardware",
-                  layout.MODE_REPLAY: "replay"}.get(mode, mode)],
-        ["operator", str(a.get(layout.ATTR_OPERATOR, ""))],
+        ["mode", Cell(f"{mode_word(mode)} ({mode})" + ("" if is_evidence(mode) else f": {banner(mode)}"),
+                      "" if is_evidence(mode) else "warn")],
+        ["operator", describe_operator(str(a.get(layout.ATTR_OPERATOR, "")), str(a.get(layout.ATTR_OPERATOR_ORIGIN, "") or ""))],
         ["host", str(a.get(layout.ATTR_HOST, ""))],
         ["software", f"bench {a.get(layout.ATTR_SOFTWARE_VERSION, '')} (run-file format {a.get(layout.ATTR_FORMAT_VERSION, '')})"],
         ["lab config", str(a.get(layout.ATTR_CONFIG_PATH, ""))],
@@ -435,7 +442,7 @@ def section_summary(summary: RunSummary) -> str:
         duration = hms(run_time if run_time is not None else wall)
     rows.append(["duration (h:mm:ss)", duration])
     size = summary.path.stat().st_size if summary.path.exists() else 0
-    rows.append(["run file", f"{summary.path.resolve()} ({size / 1e6:.1f} MB)"])
+    rows.append(["run file", f"{printable(summary.path.resolve())} ({size / 1e6:.1f} MB)"])  # a name need not be UTF-8
     other = [s for s in summary.steps if s.type not in ("check", "bit") and s.outcome in ("failed", "aborted", "interrupted")]
     if other:
         rows.append(["other steps", Cell(", ".join(f"{s.index + 1} {s.name}: {s.outcome}" for s in other), "fail")])

@@ -36,6 +36,7 @@ from bench.runner.windows import Windows
 
 POLL_PERIOD_VIRTUAL_S = 5.0  # run time between stream polls in a dry-run (s): 500 frames per batch at 100 Hz
 POLL_PERIOD_WALL_S = 0.1  # on the wall clock: keeps abort latency and progress updates short
+PAUSED_TICK_WALL_S = 0.1  # a paused dry-run in virtual time looks at its flags this often (s of wall time)
 
 
 class AbortRequested(BenchError):
@@ -136,10 +137,12 @@ class Runner:
         self.results: dict[str, dict] = {}
         self.in_vacuum = False
         self.paused = False
+        self.operator_name = "operator"
+        """The run's operator (who answers at the terminal): set by ``start_run`` to the recorded name."""
         self.notices: list[str] = []
         """Messages from signal handlers, printed by the main loop (a handler must not render: it
         may interrupt the terminal library in the middle of its own work)."""
-        self.operator_events: list[tuple[str, str, str]] = []
+        self.operator_events: list[tuple[str, str, str, str]] = []
         """Operator actions taken elsewhere (:meth:`operator_event`), recorded by the runner's thread."""
         self.handlers: dict[str, Callable[["Runner", Step], tuple[str, str]]] = dict(step_handlers.HANDLERS)
 
@@ -154,12 +157,13 @@ class Runner:
         counting; polled instruments, streams and interlocks stay under watch."""
         self.paused = not self.paused
 
-    def operator_event(self, action: str, origin: str, message: str = "") -> None:
+    def operator_event(self, action: str, origin: str, message: str = "", operator: str = "") -> None:
         """Record an operator action taken from another thread (the web station: ``action`` ``pause``,
-        ``resume``, ``stop``; ``origin`` e.g. ``web 127.0.0.1``) as an event ``control`` (source the
-        origin, message JSON ``action``, ``origin``, ``message``). Only queued here: the runner's own
-        thread writes it at its next check point, as h5py writes must stay on that thread."""
-        self.operator_events.append((action, origin, message))
+        ``resume``, ``stop``; ``origin`` e.g. ``web 127.0.0.1``; ``operator`` the acting person's name)
+        as an event ``control`` (source the origin, message JSON ``action``, ``origin``, ``operator``,
+        ``message``). Only queued here: the runner's own thread writes it at its next check point, as
+        h5py writes must stay on that thread."""
+        self.operator_events.append((action, origin, message, operator))
 
     def check_abort(self) -> None:
         """Raise :class:`AbortRequested` if an abort was asked for (prints pending notices first)."""
@@ -172,8 +176,9 @@ class Runner:
         while self.notices:
             self.progress.message(self.notices.pop(0))
         while self.operator_events:
-            action, origin, message = self.operator_events.pop(0)
-            self._event(layout.EVENT_CONTROL, origin, json.dumps({"action": action, "origin": origin, "message": message}), step=self.current_step)
+            action, origin, message, operator = self.operator_events.pop(0)
+            info = {"action": action, "origin": origin, **({"operator": operator} if operator else {}), "message": message}
+            self._event(layout.EVENT_CONTROL, origin, json.dumps(info), step=self.current_step)
 
     # ---- run --------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -346,14 +351,20 @@ class Runner:
         self._event("pause", "operator", "paused")
         while self.paused:
             self.check_abort()
+            if self.clock.virtual:
+                # virtual time stands still while paused (as while a person answers): nobody is
+                # watching hours of simulated physics go by; the file keeps its heartbeat
+                self.flush_notices()
+                self.rec.tick(self.clock.now())
+                time.sleep(PAUSED_TICK_WALL_S)
+                continue
             now = self.clock.now()
             self.clock.sleep_until(min([now + period, *self.monitor.due.values()]))
             self.monitor.poll(self.clock.now())
             for name in list(self.ingest.streaming):
                 self._drain(name)
             self.rec.tick(self.clock.now())
-            if not self.clock.virtual:
-                time.sleep(0)  # let a signal handler run
+            time.sleep(0)  # let a signal handler run
         self._event("resume", "operator", "resumed")
         self.progress.message("resumed")
 

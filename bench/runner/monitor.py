@@ -74,12 +74,15 @@ class LabMonitor:
         self.envelopes: dict[str, tuple] = {}
         self.signals: dict[str, dict[str, str]] = {}
         """Instrument -> column -> its signal name (``INSTRUMENT.COLUMN``), made once."""
+        self.units: dict[str, dict[str, str]] = {}
+        """Instrument -> column -> its units (as its monitor stream declares them)."""
         """Chamber -> its set-point limits (low, high degC, source), read at its first reading."""
 
     def declare(self, name: str, drv: Polled) -> None:
         """Declare ``/streams/NAME/monitor`` with the driver's columns; first reading due at 0 s."""
         interval = self.interval(name)
         cols = [Column(c, u, "f8") for c, u in drv.monitor_columns()]
+        self.units[name] = {c.name: c.units for c in cols}
         self.keys[name] = self.run.rec.add_stream(name, cols, layout.MONITOR_STREAM, rate_hz=1.0 / interval)
         self.due[name] = 0.0
 
@@ -126,8 +129,12 @@ class LabMonitor:
         return self.run.ingest.latest(inst, column, axis)
 
     def readings(self) -> list[str]:
-        """One progress fragment per polled instrument (its first three columns)."""
-        return [f"{name} " + " ".join(f"{k} {v:.4g}" for k, v in list(vals.items())[:3]) for name, vals in self.last.items()]
+        """One progress fragment per polled instrument (its first three columns, each with its
+        units: ``rate_table angle 41.86 deg, rate 5 deg/s, tilt -36.4 deg``)."""
+        from bench.quantity_format import fmt_reading
+
+        return [f"{name} " + ", ".join(f"{k} {fmt_reading(v, self.units.get(name, {}).get(k, ''), k)}" for k, v in list(vals.items())[:3])
+                for name, vals in self.last.items()]
 
     # ---- link faults ------------------------------------------------------------------------
     def guarded(self, name: str, read: Callable[[], object]) -> None:

@@ -9,9 +9,11 @@ nobody sits at the terminal::
 Every answer must be one of the accepted answers (:data:`CHOICES`, with the synonyms of
 :data:`AFFIRMATIVE` and :data:`NEGATIVE`); a file with another one is refused before the run.
 
-At a terminal the question shows its accepted answers (``Close the door [yes/no]``); anything else
-is asked again by the prompt step (``bench.runner.steps.prompt``), at most
-:data:`MAX_INVALID_ANSWERS` times. The terminal is read in ticks of :data:`ANSWER_TICK_S` of wall
+At a terminal the question shows its accepted answers and what "no" does (``Close the door
+[yes/no; no aborts the run]``); anything else is asked again by the prompt step
+(``bench.runner.steps.prompt``) until the prompt's timeout: a typo never ends a run. A "no" typed by
+a person is confirmed before the run aborts (:meth:`Operator.confirm_abort`: type ``abort``); from an
+answers file it aborts at once, as declared. The terminal is read in ticks of :data:`ANSWER_TICK_S` of wall
 time; between ticks a ``keepalive`` callback runs on the caller's thread, so the run keeps its
 heartbeat (and, on the wall clock, the lab under watch) while the operator thinks. Every answer is
 recorded in the run file with its source, so a replay can give the same ones.
@@ -35,8 +37,8 @@ AFFIRMATIVE = ("y", "yes", "ok", "done", "confirmed", "true")
 """Answers that confirm a prompt (case and surrounding white space ignored)."""
 NEGATIVE = ("n", "no", "false")
 """Answers that decline a prompt (case and surrounding white space ignored): the run aborts."""
-MAX_INVALID_ANSWERS = 3
-"""Answers that are neither yes nor no a prompt takes before the run aborts."""
+CONFIRM_ABORT = "abort"
+"""What a person types to confirm that their "no" stops the run."""
 ANSWER_TICK_S = 0.25
 """Wall time (s) between two looks at the terminal while waiting for an answer; the keepalive
 runs this often (the run file's heartbeat needs one flush per second)."""
@@ -50,9 +52,16 @@ def answer_verdict(answer: str) -> str | None:
     return "yes" if a in AFFIRMATIVE else ("no" if a in NEGATIVE else None)
 
 
-def question(text: str) -> str:
-    """The question as shown and recorded: the text and its accepted answers, ``text [yes/no]``."""
-    return f"{text} [{'/'.join(CHOICES)}]"
+def question(text: str, *, no_aborts: bool = False) -> str:
+    """The question as shown and recorded: the text and its accepted answers, ``text [yes/no]``,
+    and with ``no_aborts`` what "no" does: ``text [yes/no; no aborts the run]``."""
+    return f"{text} [{'/'.join(CHOICES)}{'; no aborts the run' if no_aborts else ''}]"
+
+
+def confirm_abort_question(key: str) -> str:
+    """What a person who answered "no" at prompt ``key`` is asked before the run aborts."""
+    return (f"'no' at {key!r} stops the run: the instruments go to their safe state and the run ends aborted. "
+            f"Type '{CONFIRM_ABORT}' to stop it, anything else to answer the question again:")
 
 
 def accepted_answers() -> str:
@@ -154,14 +163,18 @@ class Operator:
             return None
         return TerminalAsker(sys.stdin.fileno())
 
+    last_person: str | None = None
+    """Who gave the last answer, when the asker knows (a browser's operator field); else None: the
+    run's operator."""
+
     def can_answer(self, key: str, simulated: bool) -> bool:
         return key in self.answers or self._ask is not None or simulated
 
     def ask(self, key: str, text: str, simulated: bool, *, keepalive: Callable[[], None] | None = None,
-            deadline: float | None = None, show: Callable[[str], None] | None = None) -> tuple[str, str]:
+            deadline: float | None = None, show: Callable[[str], None] | None = None, no_aborts: bool = False) -> tuple[str, str]:
         """One answer to prompt ``key`` and its source: ``file``, ``operator`` or ``dry-run``.
 
-        A person is shown :func:`question` ``(text)`` (through ``show`` if given, e.g. above a
+        A person is shown :func:`question` ``(text, no_aborts=no_aborts)`` (through ``show`` if given, e.g. above a
         progress display) and read in ticks of :data:`ANSWER_TICK_S`; ``keepalive()`` runs after every
         tick without an answer (it may raise, e.g. to abort). ``deadline``: ``time.monotonic()`` value
         (s) after which :class:`NoAnswer` is raised; the end of the input raises it too. Raises
@@ -170,21 +183,38 @@ class Operator:
         if key in self.answers:
             return self.answers[key], "file"
         if self._ask is not None:
-            (show or self._ask.show)(question(text))
-            while True:
-                tick = ANSWER_TICK_S
-                if deadline is not None:
-                    tick = min(tick, deadline - time.monotonic())
-                    if tick <= 0:
-                        raise NoAnswer("no answer in time", timed_out=True)
-                try:
-                    line = self._ask.read_line(tick)
-                except EOFError:
-                    raise NoAnswer("the terminal's input ended", timed_out=False) from None
-                if line is not None:
-                    return line.strip(), "operator"
-                if keepalive is not None:
-                    keepalive()
+            (show or self._ask.show)(question(text, no_aborts=no_aborts))
+            return self._read(keepalive, deadline), "operator"
         if simulated:
             return "yes", "dry-run"
         raise InputError(f"prompt {key!r} needs an answer: run on a terminal or give --answers FILE with '{key}: yes'", None, "--answers")
+
+    def _read(self, keepalive: Callable[[], None] | None, deadline: float | None) -> str:
+        """The person's next line, read in ticks of :data:`ANSWER_TICK_S` (``keepalive()`` between
+        them) until ``deadline`` (:class:`NoAnswer` after it, or when the input ends)."""
+        assert self._ask is not None
+        while True:
+            tick = ANSWER_TICK_S
+            if deadline is not None:
+                tick = min(tick, deadline - time.monotonic())
+                if tick <= 0:
+                    raise NoAnswer("no answer in time", timed_out=True)
+            try:
+                line = self._ask.read_line(tick)
+            except EOFError:
+                raise NoAnswer("the terminal's input ended", timed_out=False) from None
+            if line is not None:
+                return line.strip()
+            if keepalive is not None:
+                keepalive()
+
+    def confirm_abort(self, key: str, *, keepalive: Callable[[], None] | None = None, deadline: float | None = None,
+                      show: Callable[[str], None] | None = None) -> tuple[bool, str]:
+        """Ask the person who answered "no" at prompt ``key`` whether the run really stops:
+        ``(True, line)`` when they type :data:`CONFIRM_ABORT`, ``(False, line)`` for anything else
+        (the question is asked again). Nobody to ask (an answers file, a dry-run): ``(True, "")``."""
+        if self._ask is None:
+            return True, ""
+        (show or self._ask.show)(confirm_abort_question(key))
+        line = self._read(keepalive, deadline)
+        return line.strip().lower() == CONFIRM_ABORT, line

@@ -12,7 +12,7 @@ from bench.config import LabConfig
 from bench.errors import InputError
 from bench.identity import RunIdentity
 from bench.catalog.hooks import RunCatalogHook
-from bench.lab import Lab, open_lab
+from bench.lab import InstrumentOpenError, Lab, open_lab
 from bench.procedure import Procedure
 from bench.record import RunRecorder, layout
 from bench.record.skeleton import login_name
@@ -39,14 +39,15 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
               sim: bool, realtime: bool, operator: Operator, progress: Any, operator_name: str | None = None,
               fault_spec: Any = None, identity: RunIdentity | None = None,
               overdue: Sequence[OverdueCalibration] = (), accept_overdue: bool = False,
-              catalog: str | None = None, startup: StartupSignals | None = None) -> RunSession:
+              catalog: str | None = None, startup: StartupSignals | None = None, operator_origin: str = "") -> RunSession:
     """Create the run file, open the lab (recording every byte from the first one: replay answers
     it), and build the runner; with ``fault_spec`` (a parsed ``--inject-faults``) the progress sink is
     wrapped by a :class:`bench.faults.FaultInjector`. On failure, or on any ``BaseException``
     (Ctrl-C …), everything opened so far is closed and the run file is finalised as aborted with the
     reason; the exception propagates.
 
-    ``identity``: the unit under test and station, recorded as root attributes. ``overdue``: the
+    ``identity``: the unit under test and station, recorded as root attributes; ``operator_origin``
+    where ``operator_name`` came from (:mod:`bench.operators`), recorded beside it. ``overdue``: the
     run's instruments past their calibration due date, confirmed (``accept_overdue``, else through
     ``operator``) and recorded before any instrument is opened; a "no" finalises the file as
     aborted and raises :class:`bench.runner.unit_identity.CalibrationDeclined`.
@@ -78,7 +79,8 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
             software_version=__version__,
             flush_interval_s=config.flush_interval_s,
             **({"operator": operator_name} if operator_name else {}),
-            identity=root_attrs(identity) if identity is not None else None,
+            identity={**(root_attrs(identity) if identity is not None else {}),
+                      **({layout.ATTR_OPERATOR_ORIGIN: operator_origin} if operator_origin else {})} or None,
         )
     hook: RunCatalogHook | None = None
     doing = "cataloguing the run"
@@ -86,13 +88,13 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
         guard.raise_pending()
         doing = "recording the config's files"
         recorder.event(layout.EVENT_CONFIG_SOURCES, "runner", config.name, t_s=0.0, data=config_sources_json(config))
-        doing = "cataloguing the run"
-        # the run's row, `running` (``catalog``: URL or file, default runs_dir/catalog.sqlite); never raises
-        hook = RunCatalogHook.run_started(recorder.path, runs_dir=runs_dir, catalog=catalog)
         doing = "confirming overdue calibrations"
         confirm_overdue(overdue, operator, accept_overdue, recorder, operator_name or login_name())
         doing = "opening the instruments"
         lab = open_lab(config, procedure.instruments, sim=sim, realtime=realtime, on_traffic=traffic)
+        doing = "cataloguing the run"
+        # the run's row, `running` (``catalog``: URL or file, default runs_dir/catalog.sqlite); never raises
+        hook = RunCatalogHook.run_started(recorder.path, runs_dir=runs_dir, catalog=catalog)
         doing = "preparing the run"
         recorder.event("lab_open", "runner", "instruments open", t_s=lab.clock.now())
         faults: list[Any] = []
@@ -103,6 +105,7 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
             faults = plan_faults(fault_spec, lab.kinds, procedure.estimated_duration_s())
             progress = FaultInjector(progress, faults, lab, recorder)
         runner = Runner(procedure, lab, recorder, progress, operator, declared=declared_identity(config, procedure.instruments))
+        runner.operator_name = operator_name or login_name()
         guard.hand_over()
     except BaseException as exc:
         with guard.held():  # the run ends before its first step: the file is finalised as aborted, its row updated
@@ -111,9 +114,16 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
                     lab.close()
                 except Exception:  # noqa: BLE001 - the file must still be finalised; the first failure is reported
                     pass
-            recorder.close("aborted", _startup_abort_reason(exc, doing))
-            if hook is not None:
-                hook.run_ended()
+            never_started = isinstance(exc, InstrumentOpenError)
+            try:
+                recorder.close("aborted", _startup_abort_reason(exc, doing))
+            finally:
+                if never_started:
+                    # the run never started (nothing but identification was sent): no run file is
+                    # kept and it was never catalogued; the error names the instrument and what to do
+                    _discard(recorder.path)
+            if not never_started:  # an aborted start-up (declined calibration, a stop signal…) is on record
+                (hook or RunCatalogHook(recorder.path, runs_dir, catalog)).run_ended()
         if isinstance(exc, StoppedDuringStartup):
             exc.run_file = recorder.path
         raise
@@ -141,3 +151,17 @@ def _startup_abort_reason(exc: BaseException, doing: str) -> str:
     if doing == "planning the injected faults" and isinstance(exc, InputError):
         return "bad --inject-faults spec"
     return f"start-up failed while {doing}: {exc or type(exc).__name__}"
+
+
+def _discard(path: Path) -> None:
+    """Remove the run file of a run that never started (an instrument could not be opened): its
+    name (the placeholder, or the finalised file moved over it) and the hidden file it was being
+    set up in (:func:`bench.record.destination.partial_path`), should closing have failed before
+    moving it."""
+    from bench.record.destination import partial_path
+
+    for p in (Path(path), partial_path(Path(path))):
+        try:
+            p.unlink()
+        except OSError:
+            pass

@@ -24,10 +24,10 @@ from bench.procedure import Step
 from bench.procedure.schema import PROMPT_TIMEOUT_S
 from bench.procedure.signals import signal_units
 from bench.record import layout
-from bench.record.checks import has_limits
+from bench.quantity_format import fmt_quantity, fmt_range
+from bench.record.checks import display_value, has_limits
 from bench.runner.operator import (
     CHOICES,
-    MAX_INVALID_ANSWERS,
     NON_INTERACTIVE_SOURCES,
     NoAnswer,
     accepted_answers,
@@ -56,42 +56,60 @@ def comment(r: "Runner", step: Step) -> tuple[str, str]:
 
 
 def prompt(r: "Runner", step: Step) -> tuple[str, str]:
-    """Ask the operator to act and confirm: the question shows the accepted answers, anything else
-    is asked again (at most :data:`MAX_INVALID_ANSWERS` answers, within the step's ``timeout`` of wall
-    time). Each question is an event ``prompt`` (the run reads ``waiting`` until it is answered),
-    each answer an event ``operator``; the run keeps its heartbeat meanwhile (:meth:`Runner.keep_watch`)."""
+    """Ask the operator to act and confirm: the question shows the accepted answers and that "no"
+    aborts the run; anything else is asked again until the step's ``timeout`` of wall time (a typo
+    never ends a run). A "no" typed by a person is confirmed first (:meth:`Operator.confirm_abort`);
+    from an answers file it aborts at once. Each question is an event ``prompt`` (the run reads
+    ``waiting`` until it is answered), each answer an event ``operator`` (with who answered and from
+    where); the run keeps its heartbeat meanwhile (:meth:`Runner.keep_watch`)."""
     key = step.params.get("id") or step.name
     text = step.params["text"]
     timeout_s = float(step.params.get("timeout") or PROMPT_TIMEOUT_S)
     deadline = time.monotonic() + timeout_s
-    answer = ""
+    show = lambda q: r.progress.message(escape(q))  # noqa: E731
     attempt = 0
-    for attempt in range(1, MAX_INVALID_ANSWERS + 1):
-        r.rec.event(layout.EVENT_PROMPT, "operator", question(text), t_s=r.clock.now(), step=step.index,
+    while True:
+        attempt += 1
+        r.rec.event(layout.EVENT_PROMPT, "operator", question(text, no_aborts=True), t_s=r.clock.now(), step=step.index,
                     data=json.dumps({"id": key, "text": text, "choices": list(CHOICES), "attempt": attempt,
                                      "timeout_s": timeout_s}).encode())
         r.rec.flush()  # readers see the question (and the waiting run) at once
         try:
             answer, source = r.operator.ask(key, text, simulated=r.lab.mode == "sim", keepalive=r.keep_watch, deadline=deadline,
-                                            show=lambda q: r.progress.message(escape(q)))
+                                            show=show, no_aborts=True)
         except NoAnswer as exc:
             why = f"within {timeout_s:g} s" if exc.timed_out else f"({exc})"
             raise StepAbort(f"no answer at prompt {key!r} {why}: {text}") from None
         verdict = answer_verdict(answer)
-        r.rec.event(layout.EVENT_OPERATOR, "prompt", json.dumps({"id": key, "text": text, "answer": answer, "source": source,
-                                                                  "attempt": attempt, "valid": verdict is not None}),
-                    t_s=r.clock.now(), step=step.index)
+        person = r.operator.last_person or r.operator_name
+        _record_answer(r, step, {"id": key, "text": text, "answer": answer, "source": source, "operator": person,
+                                 "attempt": attempt, "valid": verdict is not None})
         if verdict == "yes":
-            return "done", f"confirmed ({source})"
+            return "done", f"confirmed ({source})"  # who: the operator event (the wording replays of older runs compare)
+        interactive = source not in NON_INTERACTIVE_SOURCES
         if verdict == "no":
-            raise StepAbort(f"operator answered {answer!r} at prompt {key!r}: {text}")
-        if source in NON_INTERACTIVE_SOURCES:
-            break  # the same answer would come again
-        if attempt < MAX_INVALID_ANSWERS:
-            r.progress.message(escape(f"{answer!r} is not an accepted answer; accepted: {accepted_answers()} "
-                                      f"(asking again, {attempt + 1} of {MAX_INVALID_ANSWERS})"))
-    raise StepAbort(f"no valid answer at prompt {key!r} after {attempt} attempt{'s' if attempt != 1 else ''} "
-                    f"(last {answer!r}; accepted: {accepted_answers()}): {text}")
+            if interactive:
+                try:
+                    confirmed, line = r.operator.confirm_abort(key, keepalive=r.keep_watch, deadline=deadline, show=show)
+                except NoAnswer as exc:
+                    why = f"within {timeout_s:g} s" if exc.timed_out else f"({exc})"
+                    raise StepAbort(f"no answer at prompt {key!r} {why}: {text}") from None
+                if line:
+                    _record_answer(r, step, {"id": key, "confirm_abort": line, "confirmed": confirmed, "source": source,
+                                             "operator": r.operator.last_person or person, "attempt": attempt})
+                if not confirmed:
+                    r.progress.message(escape(f"not stopped; asking {key!r} again"))
+                    continue
+            raise StepAbort(f"operator {person} answered {answer!r} at prompt {key!r}: {text}")
+        if not interactive:  # the same answer would come again
+            raise StepAbort(f"no valid answer at prompt {key!r} ({answer!r} from {source}; accepted: {accepted_answers()}): {text}")
+        r.progress.message(escape(f"{answer!r} is not an accepted answer; accepted: {accepted_answers()} (no aborts the run); "
+                                  "asking again"))
+
+
+def _record_answer(r: "Runner", step: Step, info: dict) -> None:
+    """An ``operator`` event (source ``prompt``) with an answer to the prompt of ``step``."""
+    r.rec.event(layout.EVENT_OPERATOR, "prompt", json.dumps(info), t_s=r.clock.now(), step=step.index)
 
 
 def power(r: "Runner", step: Step) -> tuple[str, str]:
@@ -206,9 +224,11 @@ def wait_until_stable(r: "Runner", step: Step) -> tuple[str, str]:
         ok = ok[0]
     else:
         ok = run()
+    units = _signal_units(r, p["signal"])
     if not ok:
-        raise StepAbort(f"{p['signal']} not stable within {p['band']:g} over {p['hold']:g} s after {p['timeout']:g} s")
-    return "done", f"{p['signal']} stable at {r.read_signal(p['signal']):.4g}"
+        raise StepAbort(f"{p['signal']} not stable within {fmt_quantity(p['band'], units)} over {fmt_quantity(p['hold'], 's')} "
+                        f"after {fmt_quantity(p['timeout'], 's')}")
+    return "done", f"{p['signal']} stable at {fmt_quantity(r.read_signal(p['signal']), units)}"
 
 
 # ---- rate table and stepper bench -----------------------------------------------------------------
@@ -312,32 +332,47 @@ def check(r: "Runner", step: Step) -> tuple[str, str]:
     p = step.params
     value, basis = r.windows.statistic(p["signal"], p["statistic"], p["window"])
     lo, hi = p.get("min"), p.get("max")
+    units = _signal_units(r, p["signal"])
+
+    def shown(v: float | None) -> str:  # a value in the check's display units (scale-factor errors in %)
+        x, u = display_value(p["statistic"], v, units)
+        return fmt_quantity(x, u)
+
     problems = []
     if lo is not None and value < lo:
-        problems.append(f"below {lo:g}")
+        problems.append(f"below {shown(lo)}")
     if hi is not None and value > hi:
-        problems.append(f"above {hi:g}")
+        problems.append(f"above {shown(hi)}")
     ref_text = ""
     if p.get("reference"):
         ref = r.results.get(p["reference"])
         if ref is None:
             raise StepAbort(f"check {step.name!r} refers to {p['reference']!r}, which has no result yet")
         diff = value - ref["value"]
-        ref_text = f", {diff:+.6g} from {p['reference']} ({ref['value']:.6g})"
+        ref_text = f", {display_signed(p['statistic'], diff, units)} from {p['reference']} ({shown(ref['value'])})"
         if p.get("max_difference") is not None and abs(diff) > p["max_difference"]:
-            problems.append(f"differs from {p['reference']} by more than {p['max_difference']:g}")
+            problems.append(f"differs from {p['reference']} by more than {shown(p['max_difference'])}")
     limited = has_limits(lo, hi, p.get("max_difference"), p.get("reference"))
     outcome = layout.OUTCOME_FAILED if problems else (layout.OUTCOME_PASSED if limited else layout.OUTCOME_RECORDED)
     result = {"name": step.name, "signal": p["signal"], "statistic": p["statistic"], "window": p["window"], "value": value,
               "min": lo, "max": hi, "reference": p.get("reference") or None, "outcome": outcome, "basis": basis,
-              "max_difference": p.get("max_difference"), "units": _signal_units(r, p["signal"]), "step": step.index}
+              "max_difference": p.get("max_difference"), "units": units, "step": step.index}
     r.results[step.name] = result
-    r.rec.event(layout.EVENT_CHECK, step.name, f"{outcome}: {p['statistic']} of {p['signal']} = {value:.6g}", t_s=r.clock.now(),
+    r.rec.event(layout.EVENT_CHECK, step.name, f"{outcome}: {p['statistic']} of {p['signal']} = {shown(value)}", t_s=r.clock.now(),
                 step=step.index, data=json.dumps(result).encode())
     if not limited:
-        return outcome, f"{p['statistic']} {p['signal']} = {value:.6g}{ref_text}, no limits: no verdict ({basis})"
-    limits = f"[{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}]"
-    return outcome, f"{p['statistic']} {p['signal']} = {value:.6g} {limits}{ref_text} ({basis})" + (f": {'; '.join(problems)}" if problems else "")
+        return outcome, f"{p['statistic']} {p['signal']} = {shown(value)}{ref_text}, no limits: no verdict ({basis})"
+    x_lo, u = display_value(p["statistic"], lo, units)
+    x_hi, _ = display_value(p["statistic"], hi, units)
+    limits = f"limits {fmt_range(x_lo, x_hi, u)}" if lo is not None or hi is not None else "no limits"
+    return outcome, (f"{p['statistic']} {p['signal']} = {shown(value)} ({limits}{ref_text}; {basis})"
+                     + (f": {'; '.join(problems)}" if problems else ""))
+
+
+def display_signed(statistic: str, value: float, units: str) -> str:
+    """A difference in the check's display units with its sign: ``+0.012 %``."""
+    x, u = display_value(statistic, value, units)
+    return fmt_quantity(x, u, signed=True)
 
 
 def _signal_units(r: "Runner", signal: str) -> str:

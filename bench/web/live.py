@@ -37,11 +37,13 @@ class WebAsker:
     question on the page, :meth:`read_line` waits (at most ``timeout_s``) for :meth:`answer`."""
 
     def __init__(self) -> None:
-        self._answers: queue.Queue[tuple[str, str]] = queue.Queue()
+        self._answers: queue.Queue[tuple[str, str, str]] = queue.Queue()
         self._lock = threading.Lock()
         self.question: Question | None = None
         self.last_origin = ""
         """Origin (``web <address>``) of the last answer read."""
+        self.last_person = ""
+        """Name the browser gave with the last answer read (its operator field)."""
 
     def show(self, text: str) -> None:
         with self._lock:
@@ -49,20 +51,20 @@ class WebAsker:
 
     def read_line(self, timeout_s: float) -> str | None:
         try:
-            line, origin = self._answers.get(timeout=max(0.0, timeout_s))
+            line, origin, person = self._answers.get(timeout=max(0.0, timeout_s))
         except queue.Empty:
             return None
         with self._lock:
             self.question = None
-            self.last_origin = origin
+            self.last_origin, self.last_person = origin, person
         return line
 
-    def answer(self, line: str, origin: str) -> bool:
+    def answer(self, line: str, origin: str, person: str = "") -> bool:
         """Hand the page's answer to the waiting prompt; False when no question waits."""
         with self._lock:
             if self.question is None:
                 return False
-        self._answers.put((line, origin))
+        self._answers.put((line, origin, person))
         return True
 
     def close(self) -> None:
@@ -73,11 +75,20 @@ class WebAsker:
 
 class WebOperator(Operator):
     """An :class:`Operator` asking through a :class:`WebAsker`; an answer from the page is recorded
-    with the source ``web <client address>`` instead of ``operator``."""
+    with the source ``web <client address>`` instead of ``operator``, and with the name the page
+    gave (:attr:`last_person`). A "no" reaches it only once the page has confirmed that it stops the
+    run (:func:`check_answer`), so :meth:`confirm_abort` asks nothing more."""
 
     def __init__(self, asker: WebAsker):
         super().__init__(None, asker)
         self.asker = asker
+
+    @property
+    def last_person(self) -> str | None:  # type: ignore[override]
+        return self.asker.last_person or None
+
+    def confirm_abort(self, key: str, **_kw: Any) -> tuple[bool, str]:
+        return True, ""
 
     def ask(self, key: str, text: str, simulated: bool, **kw: Any) -> tuple[str, str]:
         shown = kw.pop("show", None)
@@ -92,6 +103,25 @@ class WebOperator(Operator):
         finally:
             self.asker.close()  # answered, timed out or aborted: nothing waits on the page any more
         return answer, (self.asker.last_origin or "web") if source == "operator" else source
+
+
+def check_answer(text: Any, confirm_abort: Any) -> str:
+    """An answer from the page, checked before it reaches the run: one of the accepted answers
+    (a typo is refused at once, the prompt keeps waiting), and a "no" only with ``confirm_abort``
+    true (it stops the run). :class:`InputError` naming ``answer`` otherwise; returns the answer."""
+    from bench.errors import InputError
+    from bench.runner.operator import accepted_answers, answer_verdict
+
+    if not isinstance(text, str) or not text.strip() or len(text) > 200:
+        raise InputError("expected an answer such as yes or no", None, "answer")
+    verdict = answer_verdict(text)
+    if verdict is None:
+        raise InputError(f"{text.strip()[:40]!r} is not an accepted answer; accepted: {accepted_answers()} (no stops the run)",
+                         None, "answer")
+    if verdict == "no" and confirm_abort is not True:
+        raise InputError("answering no stops the run (instruments to their safe state): confirm it (confirm_abort: true)",
+                         None, "answer")
+    return text.strip()
 
 
 class PageProgress:
@@ -163,12 +193,21 @@ def interlock_states(runner: Any) -> list[dict[str, Any]]:
     """The procedure's interlocks with their latest value and state: ``ok``, ``beyond`` (the reading is
     outside its limits), ``inactive`` (a vacuum interlock outside vacuum), ``no reading``, ``stall``
     (watched by frame gaps). Read from another thread: values only, never an instrument."""
+    from bench.procedure.signals import signal_units
+    from bench.quantity_format import fmt_quantity, fmt_range
+
     out = []
     for lock in runner.procedure.interlocks:
+        try:
+            units = signal_units(lock.signal, runner.lab.kinds.get(lock.signal.split(".", 1)[0]))
+        except (KeyError, AttributeError):
+            units = ""
         item: dict[str, Any] = {"name": lock.name, "signal": lock.signal, "min": lock.minimum, "max": lock.maximum,
-                                "active": lock.active, "value": None}
+                                "active": lock.active, "value": None, "units": units, "value_text": "",
+                                "limits_text": fmt_range(lock.minimum, lock.maximum, units)}
         if lock.stall_s is not None:
-            item.update(state="stall watch", max_gap_s=lock.stall_s)
+            item.update(state="stall watch", max_gap_s=lock.stall_s,
+                        limits_text=f"no gap in the frames longer than {fmt_quantity(lock.stall_s, 's')}")
         elif lock.active == "vacuum" and not runner.in_vacuum:
             item["state"] = "inactive"
         else:
@@ -178,6 +217,7 @@ def interlock_states(runner: Any) -> list[dict[str, Any]]:
                 item["state"] = "no reading"
             else:
                 item["value"] = float(v)
+                item["value_text"] = fmt_quantity(float(v), units)
                 item["state"] = "beyond" if lock.beyond(float(v)) else "ok"
         out.append(item)
     return out
@@ -191,15 +231,17 @@ def limit_states(runner: Any) -> list[dict[str, Any]]:
     what the steps command and were checked on every step before the run started (``checked``).
     Read from another thread: values only, never an instrument."""
     from bench.procedure.limits import LIMIT_UNITS, effective_limits
+    from bench.quantity_format import fmt_quantity, fmt_range
     from bench.runner.monitor import CHAMBER_SAFETY_MARGIN_C, ENVELOPE_COLUMNS, outside_envelope
 
     out = []
     for inst, kind in runner.lab.kinds.items():
         limits = effective_limits(kind, runner.lab.config_limits.get(inst, {}), runner.procedure.limits.get(inst, {}))
         for quantity, (lo, hi, source) in limits.items():
+            units = LIMIT_UNITS.get(kind, {}).get(quantity, "").replace("delta_", "")
             item: dict[str, Any] = {"instrument": inst, "quantity": quantity, "min": lo, "max": hi, "source": source,
-                                    "units": LIMIT_UNITS.get(kind, {}).get(quantity, "").replace("delta_", ""),
-                                    "value": None, "state": "checked"}
+                                    "units": units, "value": None, "state": "checked", "limits_text": fmt_range(lo, hi, units),
+                                    "value_text": ""}
             if kind == "tvac" and quantity == "set_point":
                 item["watch"] = f"air and mount temperature within ± {CHAMBER_SAFETY_MARGIN_C:g} degC"
                 values = [v for v in (runner.monitor.last.get(inst, {}).get(c) for c in ENVELOPE_COLUMNS) if v is not None and v == v]
@@ -208,6 +250,7 @@ def limit_states(runner: Any) -> list[dict[str, Any]]:
                 else:
                     worst = max(values, key=lambda v: max((lo - v) if lo is not None else 0.0, (v - hi) if hi is not None else 0.0))
                     item["value"] = float(worst)
+                    item["value_text"] = fmt_quantity(float(worst), "degC")
                     item["state"] = "beyond" if outside_envelope(worst, lo, hi) else "ok"
             out.append(item)
     return out

@@ -18,6 +18,10 @@ Frame = tuple[int, bytes]
 """(11-bit COB-ID, data bytes)."""
 
 RECV_POLL_S = 0.02  # receive-thread poll (wall s): bounds close() time
+MARKER_ID = 0x1FFFF800
+"""Extended (29-bit) identifier of the marker frame :meth:`ScriptedNode.settle` sends: not a CANopen
+COB-ID (those are 11-bit), and its low 11 bits (0) name neither a node nor a service, so a canopen
+network on the channel ignores it."""
 _ids = itertools.count()
 
 
@@ -124,6 +128,7 @@ class ScriptedNode:
     def __post_init__(self) -> None:
         self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
         self._cond = threading.Condition()
+        self._markers: set[bytes] = set()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"scripted node {self.channel}", daemon=True)
         self._thread.start()
@@ -146,6 +151,11 @@ class ScriptedNode:
         while not self._stop.is_set():
             msg = self._bus.recv(RECV_POLL_S)
             if msg is None or msg.is_error_frame or msg.is_remote_frame:
+                continue
+            if msg.is_extended_id and msg.arbitration_id == MARKER_ID:
+                with self._cond:
+                    self._markers.add(bytes(msg.data))
+                    self._cond.notify_all()
                 continue
             got = (msg.arbitration_id, bytes(msg.data))
             with self._cond:
@@ -173,6 +183,26 @@ class ScriptedNode:
                     break
                 self._cond.wait(left)
             return self.mismatch is None and self.pos == len(self.script)
+
+    def settle(self, timeout_s: float = 2.0) -> bool:
+        """Wait until this node has judged every frame sent on the channel so far: send a marker frame
+        from a bus of its own and wait (at most ``timeout_s`` wall s) for the node to receive it. A
+        virtual bus delivers frames in the order they were sent, so a frame the host sent before this
+        call is in :attr:`received` (or :attr:`mismatch`) once it returns True."""
+        token = next(_ids).to_bytes(8, "big")
+        bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        try:
+            bus.send(can.Message(arbitration_id=MARKER_ID, data=token, is_extended_id=True))
+        finally:
+            bus.shutdown()
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while token not in self._markers:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+            return True
 
     def close(self) -> None:
         self._stop.set()

@@ -154,7 +154,6 @@ CW_COMMANDS: dict[str, int] = {
 REMOTE = 0x0200  # statusword bit 9 (the bench drive always sets it; document, last paragraph of the state table)
 SDO_TIMEOUT_S = 0.5  # the driver's timeout_s (wall s)
 ANSWER_WAIT_S = 2.0  # wall s a simulator answer may take (waits end when it comes)
-SILENCE_S = 0.3  # wall s of silence that counts as "no answer"
 HEARTBEAT_WAIT_S = 1.0  # wall s for a heartbeat of the 100 ms producer
 
 
@@ -213,9 +212,10 @@ READ_BOTH = [
 
 
 def _played(node: ScriptedNode) -> None:
-    """Every step was played and the host sent nothing else (a late extra frame shows up within 50 ms)."""
+    """Every step was played and the host sent nothing else (the node has judged every frame sent
+    before this call: the driver's call has returned, so whatever it sent is among them)."""
     assert node.wait_done(2.0), node.mismatch or f"script stopped at step {node.pos} of {len(node.script)}"
-    time.sleep(0.05)
+    assert node.settle(ANSWER_WAIT_S), "the node did not receive the marker frame"
     assert node.mismatch is None, node.mismatch
     assert len(node.received) == sum(isinstance(s, Exchange) for s in node.script)
 
@@ -406,6 +406,14 @@ def ask(cap: Capture, request: Frame, timeout_s: float = ANSWER_WAIT_S) -> Frame
     return got[0] if got else None
 
 
+def settle(cap: Capture) -> None:
+    """Wait until ``cap`` holds every frame the simulator sends in reaction to what was sent before:
+    drive 2's answer to a statusword upload (drive 2 answers SDO in every state these tests leave it
+    in). The simulator handles frames one at a time in the order they come (canopen's notifier
+    thread), so its reactions to earlier frames are on the bus before that answer."""
+    assert ask(cap, R("SDO-UP-REQ-6041-N2")) is not None, "drive 2 did not answer the statusword upload"
+
+
 def state_of(cap: Capture, node: int = 1) -> str:
     """CiA 402 state of drive ``node`` from a literal statusword upload, by the document's masks."""
     req = R("SDO-UP-REQ-6041" if node == 1 else "SDO-UP-REQ-6041-N2")
@@ -483,7 +491,8 @@ def test_sim_nmt_states_heartbeat_sdo_and_pdo_availability(sim_bus):
     tpdo_ids = {0x181, 0x281, 0x182, 0x282}
     # PRE-OPERATIONAL: SDO yes, PDO no
     mark = cap.send(R("SYNC"))
-    assert cap.wait_for(tpdo_ids, since=mark, timeout_s=SILENCE_S) == []
+    settle(cap)
+    assert cap.frames(mark, tpdo_ids) == []
     # OPERATIONAL (node 1 only): SYNC brings node 1's two TPDOs, node 2 stays silent
     mark = cap.send(R("NMT-START-1"))
     wait_heartbeat(cap, "HB-OPERATIONAL-1", mark)
@@ -494,14 +503,17 @@ def test_sim_nmt_states_heartbeat_sdo_and_pdo_availability(sim_bus):
     assert tpdos[1] == R("TPDO2-1-REST")
     sw = int.from_bytes(tpdos[0][1][:2], "little")
     assert sw & SW_STATES["SWITCH ON DISABLED"][0] == SW_STATES["SWITCH ON DISABLED"][1]
-    time.sleep(SILENCE_S)
+    settle(cap)
     assert cap.frames(mark, {0x182, 0x282}) == []
     # STOPPED: only NMT and heartbeat; no SDO answer, no PDO
     mark = cap.send(R("NMT-STOP-1"))
     wait_heartbeat(cap, "HB-STOPPED-1", mark)
-    assert ask(cap, R("SDO-UP-REQ-6041"), timeout_s=SILENCE_S) is None
+    mark = cap.send(R("SDO-UP-REQ-6041"))
+    settle(cap)
+    assert cap.frames(mark, {_response_cob(R("SDO-UP-REQ-6041"))}) == []
     mark = cap.send(R("SYNC"))
-    assert cap.wait_for(tpdo_ids, since=mark, timeout_s=SILENCE_S) == []
+    settle(cap)
+    assert cap.frames(mark, tpdo_ids) == []
     # back to PRE-OPERATIONAL: SDO answered again
     mark = cap.send(R("NMT-PREOP-1"))
     wait_heartbeat(cap, "HB-PREOP-1", mark)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import re
+from pathlib import Path
 
 import pytest
 import serial
@@ -25,8 +26,10 @@ from bench.sim.thermocouple_reader import ThermocoupleReaderSim
 from bench.sim.world import World, WorldParams
 from drivers.errors import DeviceFault, InstrumentTimeout
 from drivers.thermocouple_reader import ThermocoupleReader
+from tests.golden.doc_table import exchange_rows
 from tests.golden.expected_exchange import expected_exchange
 
+DOC = Path(__file__).resolve().parents[2] / "docs" / "golden" / "keysight-34970a.md"
 TIMEOUT_S = 0.3  # driver and raw-port read timeout (s; virtual time for the simulator)
 ROOM_C = 20.0  # world ambient: chamber, mount and the logger's terminals (°C)
 
@@ -46,10 +49,38 @@ READ_3 = (b"READ?\n", b"+2.12345678E+01,+9.90000000E+37,-1.25000000E+00\r\n")  #
 READ_NEG_OVERLOAD = (b"READ?\n", b"+2.12345678E+01,-9.90000000E+37,+2.20000000E+01\r\n")  # K7
 UNDEFINED_HEADER = (b"SYST:ERR?\n", b'-113,"Undefined header"\r\n')  # K5
 RJUN_101 = (b"SENS:TEMP:TRAN:TC:RJUN? (@101)\n", b"+2.35000000E+01\r\n")  # K9
+INIT, FETCH = b"INIT\n", b"FETC?\n"  # K8
+ROWS: dict[str, tuple[list[bytes], list[bytes]]] = {  # row: (host -> logger, logger -> host), each line once, in order
+    "K1": ([IDN_34970A[0]], [IDN_34970A[1]]),
+    "K2": ([IDN_34972A[0]], [IDN_34972A[1]]),
+    "K3": ([request for request, _ in CONFIGURE_101_103_K], []),
+    "K4": ([NO_ERROR[0]], [NO_ERROR[1]]),
+    "K5": ([UNDEFINED_HEADER[0]], [UNDEFINED_HEADER[1], NO_ERROR[1]]),
+    "K6": ([READ_3[0]], [READ_3[1]]),
+    "K7": ([READ_NEG_OVERLOAD[0]], [READ_NEG_OVERLOAD[1]]),
+    "K8": ([INIT, FETCH], []),  # the answer is a format (READ_RE), not bytes
+    "K9": ([RJUN_101[0]], [RJUN_101[1]]),
+}
 # reply format SD.DDDDDDDDESDD (S sign, D digit), comma-separated in scan order; RS-232 ends CR LF
 READING = rb"[+-][0-9]\.[0-9]{8}E[+-][0-9]{2}"
 READ_RE = re.compile(rb"^(" + READING + rb")((?:," + READING + rb")*)\r\n$")
 IDN_RE = re.compile(rb"^[^,\r\n]+,34970A,[^,\r\n]+,[^,\r\n]+\r\n$")
+
+
+def _format_regex(form: str) -> bytes:
+    """A reading format as the 34401A guide writes it (S sign, D digit, the rest literal) as a regular
+    expression, repeats counted: ``SD.DDE`` -> ``[+-][0-9]\\.[0-9]{2}E``."""
+    tokens = [{"S": "[+-]", "D": "[0-9]"}.get(c, re.escape(c)) for c in form]
+    groups = [(tok, len(list(run))) for tok, run in itertools.groupby(tokens)]
+    return "".join(tok if n == 1 else f"{tok}{{{n}}}" for tok, n in groups).encode()
+
+
+def test_rows_are_the_rows_of_the_document():
+    """The literals above and the table of docs/golden/keysight-34970a.md are the same bytes, row by
+    row; the reading format the simulator tests match is the document's SD.DDDDDDDDESDD."""
+    assert exchange_rows(DOC, r"K\d+") == ROWS
+    forms = set(re.findall(r"\b[SD.E]*D\.D+E[SD]+\b", DOC.read_text(encoding="utf-8")))
+    assert {_format_regex(form) for form in forms} == {READING}, forms
 
 
 # ---- (a) driver ------------------------------------------------------------------------------
@@ -160,8 +191,8 @@ def test_sim_init_fetch(sim):
     """K8: INIT takes a scan into memory, FETC? returns it in the READ? format."""
     dev, port = sim
     configure(port)
-    port.write(b"INIT\n")
-    port.write(b"FETC?\n")
+    port.write(INIT)
+    port.write(FETCH)
     answer = port.read_until(b"\n")
     assert READ_RE.match(answer) and float(answer.split(b",")[0]) == pytest.approx(ROOM_C, abs=1e-6)
 
