@@ -180,6 +180,33 @@ def _drop(dropped: list[dict[str, Any]], found: list[Term], term: Term, reason: 
     return _without(found, term)
 
 
+def _not_needed_beside(p: Prepared, terms: list[Term], generic: Term, term: Term, key: str) -> float | None:
+    """ΔIC of adding ``term`` to ``terms`` + ``generic`` (a generic shape of the structure), kept in the
+    term's evidence under ``key``: None when the term is still needed (ΔIC < −10 and a gain), else
+    that ΔIC."""
+    reduced = build_state(p, terms + [generic])
+    with_term = build_state(p, terms + [generic, term])
+    d_ic, gain, _, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
+    term.evidence.update({key: d_ic})
+    return None if d_ic < -10.0 and max(gain, gain_band) > 0 else d_ic
+
+
+def _prune(dropped: list[dict[str, Any]], found: list[Term], eligible: Callable[[Term], bool],
+           why_not: Callable[[list[Term], Term], str | None]) -> list[Term]:
+    """``found`` less, one at a time until none is left to drop, each free term that is ``eligible``
+    and for which ``why_not(found, term)`` gives a reason (recorded in ``dropped``)."""
+    changed = True
+    while changed:
+        changed = False
+        for term in [t for t in found if not t.fixed and eligible(t)]:
+            why = why_not(found, term)
+            if why:
+                found = _drop(dropped, found, term, why)
+                changed = True
+                break
+    return found
+
+
 def probe_term(p: Prepared, state: State, name: str, axis: str) -> tuple[Term, Any] | None:
     """The probe evaluated on ``state`` at ``axis`` and, when acceptable, as a model term."""
     probe = PROBES[name]
@@ -206,11 +233,8 @@ def _partial(p: Prepared, base_terms: list[Term], found: list[Term], final: Stat
     hit = probe_term(p, build_state(p, base_terms + others), probe_name, a)
     if hit is None:
         return None
-    reduced = build_state(p, base_terms + others + [hit[0]])
-    with_term = build_state(p, base_terms + others + [hit[0], term])
-    d_ic, gain, _, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
-    term.evidence.update({"d_ic_given_probe": d_ic})
-    if d_ic < -10.0 and max(gain, gain_band) > 0:
+    d_ic = _not_needed_beside(p, base_terms + others, hit[0], term, "d_ic_given_probe")
+    if d_ic is None:
         return None
     return (f"partial explanation: {where} leaves structure it does not explain, and with that structure modelled "
             f"generically the term is not needed (ΔIC {d_ic:+.1f})")
@@ -273,11 +297,8 @@ def _shared(p: Prepared, base_terms: list[Term], found: list[Term], term: Term) 
     if e is None or not e.acceptable:
         return None  # the other axes share nothing with this one
     common = Term(probe.name, a, {}, probe.build(p, a, {}, None))
-    reduced = build_state(p, base_terms + others + [common])
-    with_term = build_state(p, base_terms + others + [common, term])
-    d_ic, gain, _, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
-    term.evidence.update({"d_ic_given_common_mode": d_ic})
-    if d_ic < -10.0 and max(gain, gain_band) > 0:
+    d_ic = _not_needed_beside(p, base_terms + others, common, term, "d_ic_given_common_mode")
+    if d_ic is None:
         return None
     return (f"shared by the other axes: with the shape their residuals share modelled, the term is not needed "
             f"(ΔIC {d_ic:+.1f}); a common-mode disturbance, not an effect of this axis")
@@ -368,26 +389,10 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
     # 2b. a transient of one axis that the other axes' residuals share (a phone's common-mode
     # event, a bench disturbance) is not an effect of that axis
     if len(p.axes) > 1:
-        changed = True
-        while changed:
-            changed = False
-            for term in [t for t in found if not t.fixed and t.effect in COMMON_CHECK]:
-                why = _shared(p, base_terms, found, term)
-                if why:
-                    found = _drop(dropped, found, term, why)
-                    changed = True
-                    break
-
+        found = _prune(dropped, found, lambda t: t.effect in COMMON_CHECK, lambda f, t: _shared(p, base_terms, f, t))
     # 2c. a slow term of one run must explain its axis better than the sensor's own slow noise could
-    changed = True
-    while changed:
-        changed = False
-        for term in [t for t in found if not t.fixed and CANDIDATES[t.effect].family == "time"]:
-            why = _noise_alternative(p, base_terms, found, term)
-            if why:
-                found = _drop(dropped, found, term, why)
-                changed = True
-                break
+    found = _prune(dropped, found, lambda t: CANDIDATES[t.effect].family == "time",
+                   lambda f, t: _noise_alternative(p, base_terms, f, t))
 
     # every term still material in the final company (a term found next to a random walk that has
     # since lost its name may no longer carry its weight)
