@@ -111,7 +111,7 @@ def main() -> int:
         out: dict = {"run": str(run), "run_mb": run.stat().st_size / 1e6, "recorded_in_s": made_s,
                      "targets": {"wall_s": TARGET_S}}
         load = best(py + ["-c", LOAD, str(run)], args.repeat)
-        diag = best(py + ["-m", "bench", "diagnose", str(run), "--json", "--report", str(tmp / "out.html")], args.repeat)
+        diag = best(py + ["-m", "bench", "diagnose", str(run), "--json", "--report", str(tmp / "out.html"), "--force"], args.repeat)
         plain = best(py + ["-m", "bench", "diagnose", str(run), "--json"], args.repeat)
         rows = next((line for line in diag["stderr"].splitlines() if line.startswith("analysed ")), "")
         out["rows"] = rows

@@ -143,40 +143,69 @@ def static_datasets(name: str) -> list:
     return out
 
 
+SETTLE_S = 3600
+"""A background starts at least this long after the unit was last handled: the first hour of a
+static stretch carries its settling (on the CATS tag a decaying 0.13 deg/s transient on one axis and
+the cooling after it was put back in the chamber), a transient, not the sensor's noise."""
+STEADY_C = 0.5
+"""... and, on a log with a temperature channel, its temperature moves by less than this (°C) over the
+background's length. The CATS log is a temperature calibration: its bias follows the temperature
+(0.3 deg/s on one axis over one stretch), which a background must not carry as 'noise'."""
+
+
 @lru_cache(maxsize=2)
-def _stretches(name: str) -> tuple[np.ndarray, ...]:
-    """The real log's gyro at rest (deg/s, 1 Hz), one (n, 3) array per static stretch, mean removed."""
+def _stretches(name: str) -> tuple[tuple[np.ndarray, np.ndarray | None], ...]:
+    """The real log's gyro at rest (deg/s, 1 Hz), one (n, 3) array per static stretch, mean removed,
+    with its 1-Hz temperature (None without a temperature channel)."""
     from bench.analysis.diagnose.data import motion_rows
 
     ds = _log(name)
     t = ds["time_s"]
     g = np.stack([ds[f"gyro_{a}_dps"] for a in "xyz"], axis=1)
+    temp = ds.columns.get("temp_c")
     fs = 1.0 / float(np.median(np.diff(t)))
     moving = motion_rows(t, list(g.T), [ds[f"accel_{a}_g"] for a in "xyz"], fs)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], (~moving).astype(np.int8), [0]])))
     out = []
     for lo, hi in zip(edges[::2], edges[1::2]):
         m = int(round(fs))  # 1-Hz means
-        part = g[lo:hi]
-        part = part[: (part.shape[0] // m) * m].reshape(-1, m, 3).mean(axis=1)
+        rows = ((hi - lo) // m) * m
+        part = g[lo:lo + rows].reshape(-1, m, 3).mean(axis=1)
+        tc = None if temp is None else np.asarray(temp[lo:lo + rows], float).reshape(-1, m).mean(axis=1)
         if part.shape[0] >= 3600:
-            out.append(part - part.mean(axis=0))
+            out.append((part - part.mean(axis=0), tc))
     return tuple(out)
 
 
 def static_stretches(name: str) -> tuple[np.ndarray, ...]:
     """Every static stretch of the real log ``"s5"`` or ``"cats"`` at 1 Hz (at least an hour each)."""
-    return _stretches(name)
+    return tuple(g for g, _ in _stretches(name))
+
+
+def _quiet_starts(name: str, n: int) -> list[tuple[int, np.ndarray]]:
+    """(stretch index, the starts of the ``n``-row windows at rest: :data:`SETTLE_S` after the
+    handling, temperature within :data:`STEADY_C`) per stretch that has any."""
+    out = []
+    for i, (g, tc) in enumerate(_stretches(name)):
+        starts = np.arange(SETTLE_S, g.shape[0] - n + 1)
+        if tc is not None and starts.size:
+            from numpy.lib.stride_tricks import sliding_window_view
+
+            win = sliding_window_view(tc, n)[starts]
+            starts = starts[np.ptp(win, axis=1) < STEADY_C]
+        if starts.size:
+            out.append((i, starts))
+    return out
 
 
 def background(name: str, n: int, seed: int) -> np.ndarray:
-    """``n`` consecutive 1-Hz rows (n, 3) of a static stretch of the real log, at a place drawn from
-    ``seed``; the axes shuffled too, so one log gives several backgrounds."""
+    """``n`` consecutive 1-Hz rows (n, 3) of a static stretch of the real log, at rest (:func:`_quiet_starts`),
+    at a place drawn from ``seed``; the axes shuffled too, so one log gives several backgrounds."""
     rng = np.random.default_rng([seed, 7])
-    parts = [s for s in _stretches(name) if s.shape[0] >= n]
-    part = parts[int(rng.integers(len(parts)))]
-    start = int(rng.integers(0, part.shape[0] - n + 1))
-    piece = part[start:start + n][:, rng.permutation(3)]
+    quiet = _quiet_starts(name, n)
+    i, starts = quiet[int(rng.integers(len(quiet)))]
+    start = int(starts[int(rng.integers(starts.size))])
+    piece = _stretches(name)[i][0][start:start + n][:, rng.permutation(3)]
     return piece - piece.mean(axis=0)
 
 
@@ -186,12 +215,16 @@ BAND_S = 30
 
 def band_rms(name: str) -> float:
     """RMS (deg/s) of the background's 30-s means after removing each hour's mean (the noise a slow
-    effect stands against), median over the axes."""
+    effect stands against), median over the axes, over disjoint hours at rest (:func:`_quiet_starts`)."""
     out = []
-    for g in _stretches(name):
-        hours = g.shape[0] // 3600
-        for h in range(hours):
-            part = g[h * 3600:(h + 1) * 3600]
+    for i, starts in _quiet_starts(name, 3600):
+        g = _stretches(name)[i][0]
+        last = -3600
+        for start in starts:
+            if start < last + 3600:
+                continue
+            last = int(start)
+            part = g[start:start + 3600]
             means = part.reshape(-1, BAND_S, 3).mean(axis=1)
             out.append(np.sqrt(np.mean((means - means.mean(axis=0)) ** 2, axis=0)))
     return float(np.median(np.concatenate(out)))

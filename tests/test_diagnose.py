@@ -295,7 +295,6 @@ KNOWN_MISSES = {
                                 "structure at the rate changes that gear_eccentricity (N = 288) and a Gauss-Markov term take",
     ("unnamed", "warmup_transient", 1): "a hidden slow warm-up (τ 297 s) passes the stationarity check and is named "
                                         "a rate random walk",
-    ("unnamed", "hysteresis", 0): "g_sensitivity named on z (gain 1.011) next to a hidden hysteresis on x (issue 32)",
     ("unnamed", "time_skew", 1): "gear_eccentricity named for the structure a hidden time skew leaves at rate changes",
     ("unnamed", "earth_rate", 1): "the hidden Earth rate's slow part on x is named a rate random walk",
 }

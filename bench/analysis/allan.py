@@ -46,7 +46,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
+from scipy.special import chdtri
 
 from bench.errors import InputError
 
@@ -283,9 +284,16 @@ def chi2_interval(dev: np.ndarray, edf: np.ndarray, confidence: float = ONE_SIGM
     p = (1 − confidence)/2 (NIST SP 1065 Eq. 45)."""
     p = (1.0 - confidence) / 2.0
     edf = np.asarray(edf, dtype=np.float64)
-    lo = dev * np.sqrt(edf / stats.chi2.ppf(1.0 - p, edf))
-    hi = dev * np.sqrt(edf / stats.chi2.ppf(p, edf))
+    lo = dev * np.sqrt(edf / chi2_ppf(1.0 - p, edf))
+    hi = dev * np.sqrt(edf / chi2_ppf(p, edf))
     return lo, hi
+
+
+def chi2_ppf(q: float, df: np.ndarray | float) -> np.ndarray:
+    """Quantile ``q`` of the chi-squared distribution with ``df`` degrees of freedom (what
+    ``scipy.stats.chi2.ppf`` computes, through the same ``scipy.special.chdtri``, without importing
+    scipy.stats: 0.4 s of every command's start-up)."""
+    return chdtri(np.asarray(df, dtype=np.float64), 1.0 - q)
 
 
 # ---- noise-term fit (IEEE Std 952 Annex C) ------------------------------------------------------

@@ -139,6 +139,19 @@ class NoiseModel:
             parts.append(f"Gauss-Markov {g['sigma_dps']:.2g} deg/s, τc {g['tau_s']:.3g} s")
         return " + ".join(parts)
 
+    @property
+    def n_params(self) -> int:
+        """Fitted parameters: the white variance, B, K, and (σ, τ_c) of each Gauss-Markov process."""
+        return 1 + int(self.flicker_b > 0) + int(self.rrw_k > 0) + 2 * len(self.gm)
+
+    def exact_loglik(self, r: np.ndarray, t: np.ndarray) -> float:
+        """Exact Gaussian log-likelihood of the series ``r`` (sampled at ``t``) under this model (the
+        time domain, no taper: ``loglik`` is the band Whittle approximation the fit maximised)."""
+        if self.is_white:
+            x = np.asarray(r, dtype=float) - float(np.mean(r))
+            return -0.5 * (x.size * math.log(2.0 * math.pi * self.white_var) + float(np.dot(x, x)) / self.white_var)
+        return self.whitener().exact_loglik(r, t)
+
     def whitener(self) -> "Whitener | None":
         """The prewhitening filter of this model (None when it is white)."""
         return None if self.is_white else Whitener(self)
@@ -231,7 +244,7 @@ def _fit(G: np.ndarray, b: _Bands, theta0: np.ndarray, offset: np.ndarray | floa
     floor = np.maximum(theta0 * 1e-8, 1e-300)
 
     def f(x: np.ndarray) -> tuple[float, np.ndarray]:
-        th = np.exp(x)
+        th = np.exp(np.minimum(x, 700.0))  # a wild line-search step must not overflow
         s = np.maximum(G @ th + offset, 1e-300)
         val = -np.sum(b.count * (np.log(s) + b.mean_i / s))
         grad_s = -b.count * (1.0 / s - b.mean_i / (s * s))
@@ -445,6 +458,18 @@ class Whitener:
             K = (P @ H.T) / S
             P = F @ (P - K @ H @ P) @ F.T + Q
         return np.asarray(out)
+
+    def exact_loglik(self, r: np.ndarray, t: np.ndarray) -> float:
+        """Exact Gaussian log-likelihood of the series ``r`` under the model, from its innovations
+        (prediction error decomposition: −½ Σ ln(2π S_t) + e_t²/S_t, S_t the time-varying innovation
+        variance of each segment's start, :meth:`_transient`)."""
+        w = self.apply(np.asarray(r, dtype=float) - float(np.mean(r)), t)
+        S = self.innovation_var
+        log_s = 0.0
+        for lo, hi in segments(t):
+            k = min(self.scale.size, hi - lo)
+            log_s += (hi - lo) * math.log(S) - 2.0 * float(np.sum(np.log(self.scale[:k])))
+        return -0.5 * (w.size * math.log(2.0 * math.pi) + log_s + float(np.dot(w, w)) / S)
 
     def apply(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
         """``x`` (n,) or (n, q) whitened along its rows, segment by segment (gaps in ``t``)."""

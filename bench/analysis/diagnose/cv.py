@@ -40,8 +40,19 @@ class CVFit:
         return float(self.sse_block.sum())
 
 
+def fold_grams(A: np.ndarray, blocks: Blocks) -> tuple[np.ndarray, np.ndarray]:
+    """(whole-data Gram (m+1, m+1), per-fold Grams (K, m+1, m+1)) of block Grams ``A``: what every
+    fit of ``A`` needs whatever the penalty (a grid of smoothness reuses them, :func:`cv_fit`)."""
+    K = blocks.folds
+    onehot = np.zeros((K, A.shape[0]))
+    onehot[blocks.fold_of, np.arange(A.shape[0])] = 1.0
+    per_fold = (onehot @ A.reshape(A.shape[0], -1)).reshape(K, *A.shape[1:])
+    return A.sum(axis=0), per_fold
+
+
 def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = True,
-           S: np.ndarray | None = None, gls: bool = False) -> CVFit:
+           S: np.ndarray | None = None, gls: bool = False,
+           folded: tuple[np.ndarray, np.ndarray] | None = None) -> CVFit:
     """Fit by blocked CV. ``A`` (B, m+1, m+1) augmented block Grams, ``P`` (m, m) penalty or None,
     ``S`` (B, m+1) block sums of [X | y] for the held-out residual's block sums (default: row 0 of
     ``A``, the sums when column 0 is the constant 1; a prewhitened design passes its own).
@@ -49,14 +60,12 @@ def cv_fit(A: np.ndarray, P: np.ndarray | None, blocks: Blocks, need_df: bool = 
     ``gls``: the rows are prewhitened by a correlated noise model. Held-out blocks would then leak
     (a whitened row depends on the rows before it, in other folds), so the per-block errors and sums
     are those of the whole-data fit (the generalised least-squares likelihood), and ``df`` is always
-    computed (the criterion charges it)."""
+    computed (the criterion charges it). ``folded``: :func:`fold_grams` of ``A`` when already
+    computed (the same Grams under another penalty)."""
     m = A.shape[1] - 1
     fold = blocks.fold_of
     K = blocks.folds
-    tot = A.sum(axis=0)
-    onehot = np.zeros((K, A.shape[0]))
-    onehot[fold, np.arange(A.shape[0])] = 1.0
-    per_fold = (onehot @ A.reshape(A.shape[0], -1)).reshape(K, *A.shape[1:])
+    tot, per_fold = fold_grams(A, blocks) if folded is None else folded
     train = tot[None] - per_fold
     G = train[:, :m, :m].copy()
     h = train[:, :m, m]

@@ -509,23 +509,30 @@ def fast_lines(t: np.ndarray, r: np.ndarray, fs: float, f_min: float) -> list[Li
         f = _refine_line(t, r, f0, t[-1] - t[0])
         ph = 2.0 * math.pi * f * t
         X = np.column_stack([np.sin(ph), np.cos(ph)])
-        odd = (np.floor((t - t[0]) / LINE_BLOCK_S).astype(np.int64) % 2).astype(bool)
+        odd = (np.floor((t - t[0]) / LINE_BLOCK_S).astype(np.int64) % 2).astype(float)
+        # normal equations of the two halves from weighted sums (no copies of the rows)
+        half = [(_line_normal(X, r, w)) for w in (odd, 1.0 - odd)]
         sse0 = sse1 = 0.0
-        for train in (odd, ~odd):
-            c, *_ = np.linalg.lstsq(X[train], r[train], rcond=None)
-            e = r[~train] - X[~train] @ c
-            sse0 += float(np.dot(r[~train], r[~train]))
-            sse1 += float(np.dot(e, e))
+        for (g_fit, h_fit, _), (g_out, h_out, rr_out) in ((half[0], half[1]), (half[1], half[0])):
+            c = np.linalg.solve(g_fit, h_fit)
+            sse0 += rr_out
+            sse1 += rr_out - 2.0 * float(c @ h_out) + float(c @ g_out @ c)
         gain = 1.0 - sse1 / sse0 if sse0 > 0 else 0.0
         if gain < 0.5 * LINE_FRACTION:
             break
-        c, *_ = np.linalg.lstsq(X, r, rcond=None)
+        c = np.linalg.solve(half[0][0] + half[1][0], half[0][1] + half[1][1])
         line = Line(f, float(math.hypot(*c)), float(math.atan2(c[1], c[0])), math.sqrt(var), 0.0, gain)
         r = r - X @ c
         var = float(np.mean(r * r))
         line.rms_after = math.sqrt(var)
         out.append(line)
     return out
+
+
+def _line_normal(X: np.ndarray, r: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(XᵀWX, XᵀWr, rᵀWr) of the rows weighted by ``w`` (0/1: a subset without copying it)."""
+    Xw = X * w[:, None]
+    return Xw.T @ X, Xw.T @ r, float(np.dot(r * w, r))
 
 
 def _refine_line(t: np.ndarray, r: np.ndarray, f0: float, span_s: float) -> float:

@@ -21,12 +21,11 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
-from scipy import stats
 
-from bench.analysis.allan import overlapping_adev
+from bench.analysis.allan import chi2_ppf, overlapping_adev
 from bench.analysis.diagnose.data import Prepared
 from bench.analysis.diagnose.engine import State, Term, build_state, compare, evaluate, material, term_df
-from bench.analysis.diagnose.terms import CANDIDATES, FAMILY_PROBE, PROBES
+from bench.analysis.diagnose.terms import CANDIDATES, FAMILY_PROBE, PROBES, Built, Candidate
 
 EXCESS_P = 1e-3
 """Per-τ false-alarm probability for 'above the white-noise line' (chi-squared, white-FM edf)."""
@@ -79,7 +78,7 @@ def allan_excess(r: np.ndarray, fs: float) -> Excess:
     taus, adev = al.taus_s, al.adev
     n2 = float(np.min((adev[:4] ** 2) * taus[:4])) if taus.size else 0.0
     white = np.sqrt(n2 / taus)
-    limit = stats.chi2.ppf(1.0 - EXCESS_P, al.edf) / al.edf
+    limit = chi2_ppf(1.0 - EXCESS_P, al.edf) / al.edf
     ratio = (adev / np.maximum(white, 1e-300)) ** 2
     clusters = al.n_samples / al.m
     sig = (ratio > np.maximum(limit, EXCESS_MIN)) & (clusters >= MIN_CLUSTERS)
@@ -181,6 +180,33 @@ def _drop(dropped: list[dict[str, Any]], found: list[Term], term: Term, reason: 
     return _without(found, term)
 
 
+def _not_needed_beside(p: Prepared, terms: list[Term], generic: Term, term: Term, key: str) -> float | None:
+    """ΔIC of adding ``term`` to ``terms`` + ``generic`` (a generic shape of the structure), kept in the
+    term's evidence under ``key``: None when the term is still needed (ΔIC < −10 and a gain), else
+    that ΔIC."""
+    reduced = build_state(p, terms + [generic])
+    with_term = build_state(p, terms + [generic, term])
+    d_ic, gain, _, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
+    term.evidence.update({key: d_ic})
+    return None if d_ic < -10.0 and max(gain, gain_band) > 0 else d_ic
+
+
+def _prune(dropped: list[dict[str, Any]], found: list[Term], eligible: Callable[[Term], bool],
+           why_not: Callable[[list[Term], Term], str | None]) -> list[Term]:
+    """``found`` less, one at a time until none is left to drop, each free term that is ``eligible``
+    and for which ``why_not(found, term)`` gives a reason (recorded in ``dropped``)."""
+    changed = True
+    while changed:
+        changed = False
+        for term in [t for t in found if not t.fixed and eligible(t)]:
+            why = why_not(found, term)
+            if why:
+                found = _drop(dropped, found, term, why)
+                changed = True
+                break
+    return found
+
+
 def probe_term(p: Prepared, state: State, name: str, axis: str) -> tuple[Term, Any] | None:
     """The probe evaluated on ``state`` at ``axis`` and, when acceptable, as a model term."""
     probe = PROBES[name]
@@ -207,14 +233,113 @@ def _partial(p: Prepared, base_terms: list[Term], found: list[Term], final: Stat
     hit = probe_term(p, build_state(p, base_terms + others), probe_name, a)
     if hit is None:
         return None
-    reduced = build_state(p, base_terms + others + [hit[0]])
-    with_term = build_state(p, base_terms + others + [hit[0], term])
-    d_ic, gain, _, gain_band, _ = compare(p, reduced, with_term, term.built.axes, term_df(term))
-    term.evidence.update({"d_ic_given_probe": d_ic})
-    if d_ic < -10.0 and max(gain, gain_band) > 0:
+    d_ic = _not_needed_beside(p, base_terms + others, hit[0], term, "d_ic_given_probe")
+    if d_ic is None:
         return None
     return (f"partial explanation: {where} leaves structure it does not explain, and with that structure modelled "
             f"generically the term is not needed (ΔIC {d_ic:+.1f})")
+
+
+COMMON_CHECK = ("bias_step",)
+"""Terms checked against the shape the other axes' residuals share (:func:`_shared`): a jump at one
+instant follows no covariate. (Not the warm-up: every axis of a sensor warms up from the same
+power-on, each named on its own.)"""
+
+
+class CommonModeProbe(Candidate):
+    """The other axes' final-model residuals (unwhitened), as block-length moving averages, as
+    regressors of one axis: a slow shape the axes share."""
+
+    name = "probe:common_mode"
+    where = "the other axes' residual (a shape the axes share)"
+
+    def __init__(self, shapes: dict[str, np.ndarray]):
+        self.shapes = shapes
+
+    def candidate_axes(self, p):
+        return list(self.shapes)
+
+    def build(self, p, axis, nl, ctx):
+        return Built(cols={axis: self.shapes[axis]})
+
+    def params(self, p, axis, nl, coef):
+        return {}
+
+
+def _smooth(x: np.ndarray, width: int) -> np.ndarray:
+    """Centred moving average of ``x`` over ``width`` rows (shorter at the ends)."""
+    if width <= 1:
+        return x.copy()
+    k = np.ones(width)
+    return np.convolve(x, k, mode="same") / np.convolve(np.ones_like(x), k, mode="same")
+
+
+def _shared(p: Prepared, base_terms: list[Term], found: list[Term], term: Term) -> str | None:
+    """Why ``term`` (one axis) is not an effect of its axis, or None: with the other axes' residual
+    shapes (block-length moving averages of the final model's residuals, without prewhitening) in the
+    model, ``term`` must still be needed (ΔIC < −10 and a gain)."""
+    a = term.axis
+    others = _without(found, term)
+    # the other axes' steps at the same instant are part of the shape they share (else two axes'
+    # steps for one common event would each hide the event from the other's check)
+    near = 2.0 * p.blocks.length / p.fs
+    mates = [t for t in others if t.effect == term.effect and abs(float(t.nl["t_step_s"]) - float(term.nl["t_step_s"])) <= near]
+    saved = p.whiten
+    p.whiten = {}
+    try:
+        raw = build_state(p, base_terms + [t for t in found if not any(t is m for m in mates)])
+        shapes = np.column_stack([_smooth(raw.axes[b].resid(), p.blocks.length) for b in p.axes if b != a])
+    finally:
+        p.whiten = saved
+    probe = CommonModeProbe({a: shapes})
+    reduced0 = build_state(p, base_terms + others)
+    e = evaluate(p, reduced0, probe, a, reduced0.context())
+    if e is None or not e.acceptable:
+        return None  # the other axes share nothing with this one
+    common = Term(probe.name, a, {}, probe.build(p, a, {}, None))
+    d_ic = _not_needed_beside(p, base_terms + others, common, term, "d_ic_given_common_mode")
+    if d_ic is None:
+        return None
+    return (f"shared by the other axes: with the shape their residuals share modelled, the term is not needed "
+            f"(ΔIC {d_ic:+.1f}); a common-mode disturbance, not an effect of this axis")
+
+
+NOISE_ALTERNATIVES = (("flicker", "rrw", "gm"), ("flicker", "gm"), ("rrw", "gm"))
+"""The noise models a slow term is weighed against (forward selection within each set of kinds)."""
+
+
+def _noise_alternative(p: Prepared, base_terms: list[Term], found: list[Term], term: Term) -> str | None:
+    """Why ``term`` (a slow term of the "time" family) is not told apart from the sensor's slow noise,
+    or None. Two joint models of the axis: the term plus a noise model fitted to what it leaves,
+    against no term and a noise model (white, flicker, random walk, Gauss-Markov) fitted to the
+    residual with the term's part in it; exact Gaussian likelihoods (innovations of each model),
+    BIC charging the term's parameters and the noise models' own. The term stays when its model is
+    better by IC_MIN: a bias that wanders like flicker over one run is the sensor's noise, whatever
+    step or transient fits it best (``docs/diagnose.md``, what one run cannot separate)."""
+    from bench.analysis.noise_model import IC_MIN, fit_noise_model
+
+    a = term.axis
+    saved = p.whiten
+    p.whiten = {}
+    try:
+        r_term = build_state(p, base_terms + found).axes[a].resid()
+        r_none = build_state(p, base_terms + _without(found, term)).axes[a].resid()
+    finally:
+        p.whiten = saved
+    def bic(r: np.ndarray, m: Any) -> float:
+        return -2.0 * m.exact_loglik(r, p.t) + m.n_params * math.log(p.n)
+
+    m_term = fit_noise_model(r_term, 1.0 / p.fs, p.bin_rows)
+    # the noise explanation at its most favourable: each slow kind given its chance
+    alts = [fit_noise_model(r_none, 1.0 / p.fs, p.bin_rows, allow=allow) for allow in NOISE_ALTERNATIVES]
+    scores = [bic(r_none, m) for m in alts]
+    m_none = alts[int(np.argmin(scores))]
+    d_bic = bic(r_term, m_term) + term_df(term) * math.log(p.n) - min(scores)
+    term.evidence.update({"d_bic_vs_noise": d_bic, "noise_alternative": m_none.describe()})
+    if d_bic < -IC_MIN:
+        return None
+    return (f"not told apart from the sensor's slow noise: no term and {m_none.describe()} explains the axis as well "
+            f"(ΔBIC of the term {d_bic:+.1f})")
 
 
 def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: frozenset[str] = frozenset(),
@@ -260,6 +385,14 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
                     break
             if changed:
                 break
+
+    # 2b. a transient of one axis that the other axes' residuals share (a phone's common-mode
+    # event, a bench disturbance) is not an effect of that axis
+    if len(p.axes) > 1:
+        found = _prune(dropped, found, lambda t: t.effect in COMMON_CHECK, lambda f, t: _shared(p, base_terms, f, t))
+    # 2c. a slow term of one run must explain its axis better than the sensor's own slow noise could
+    found = _prune(dropped, found, lambda t: CANDIDATES[t.effect].family == "time",
+                   lambda f, t: _noise_alternative(p, base_terms, f, t))
 
     # every term still material in the final company (a term found next to a random walk that has
     # since lost its name may no longer carry its weight)

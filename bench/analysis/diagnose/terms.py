@@ -542,6 +542,9 @@ class BiasStep(Candidate):
     family = "time"
     nonlinear = ("t_step_s",)
     SHORTLIST = 4
+    PERSIST_BLOCKS = 4
+    """A step is a lasting change: at least this many CV blocks of data on each side of it (a jump
+    in the last minute of a record cannot be told from a brief event there)."""
 
     def grid(self, p, axis, ctx):
         def scan(r: np.ndarray) -> list[dict[str, Any]]:
@@ -549,10 +552,10 @@ class BiasStep(Candidate):
             c = np.cumsum(r - r.mean())[:-1]
             k = np.arange(1, n)
             stat = np.abs(c) / np.sqrt(k * (n - k) / n)
-            edge = max(p.blocks.length, 2)
+            edge = max(self.PERSIST_BLOCKS * p.blocks.length, 2)
             stat[: edge] = 0.0
             stat[-edge:] = 0.0
-            return [{"t_step_s": float(p.t[i + 1])} for i in _peaks(stat, self.SHORTLIST, 2 * edge)]
+            return [{"t_step_s": float(p.t[i + 1])} for i in _peaks(stat, self.SHORTLIST, 2 * max(p.blocks.length, 2))]
         return _per_residual(p, "step_scan", axis, ctx.resid[axis], scan)
 
     def build(self, p, axis, nl, ctx):
