@@ -102,9 +102,24 @@ def to_units(value: Any, units: str, location: Location | None = None, field: st
         return float(value)
     if not isinstance(value, str):
         raise InputError(f"expected a quantity in {units} such as '10 {units}', got {value!r}", location, field)
+    try:
+        return _text_in_units(value, units)
+    except _Unreadable as exc:
+        raise InputError(str(exc), location, field) from None
+
+
+class _Unreadable(Exception):
+    """A quantity's text that cannot be read in the units asked (the message says why)."""
+
+
+@functools.lru_cache(maxsize=4096)
+def _text_in_units(value: str, units: str) -> float:
+    """``value`` (text) as a float in ``units``; raises :class:`_Unreadable`. Cached: a procedure
+    writes the same few quantities many times (``estcube_gyro_thermal``: 189 conversions of 22
+    texts), and pint's parser costs ~0.2 ms a call. Only results are cached, never errors."""
     if len(value) > 200 or not _quantity_text().fullmatch(value):
-        raise InputError(f"cannot read quantity {value[:60]!r}: expected a number then its units, such as '10 {units}' "
-                         "(expressions are not evaluated)", location, field)
+        raise _Unreadable(f"cannot read quantity {value[:60]!r}: expected a number then its units, such as '10 {units}' "
+                          "(expressions are not evaluated)")
     if "delta_deg" in units:
         # a temperature difference or rate ("0.5 degC", "0.5 degC/min"): degC means a difference
         # here, not 0.5 °C = 273.65 K
@@ -113,20 +128,18 @@ def to_units(value: Any, units: str, location: Location | None = None, field: st
     try:
         q = ureg.Quantity(value.strip())
     except Exception as exc:  # noqa: BLE001 - pint's parser raises many types (even AssertionError)
-        raise InputError(f"cannot read quantity {value!r}: {_short(exc)}", location, field) from None
+        raise _Unreadable(f"cannot read quantity {value!r}: {_short(exc)}") from None
     try:
         if not isinstance(q, pint.Quantity):  # a bare number in a string
             result = float(q)
         else:
             result = float(q.to(units).magnitude)
     except pint.errors.DimensionalityError:
-        raise InputError(
-            f"{value!r} has units of {q.dimensionality}, expected a quantity convertible to {units}", location, field
-        ) from None
+        raise _Unreadable(f"{value!r} has units of {q.dimensionality}, expected a quantity convertible to {units}") from None
     except Exception as exc:  # noqa: BLE001 - e.g. a complex or non-numeric magnitude
-        raise InputError(f"cannot read quantity {value!r}: {_short(exc)}", location, field) from None
+        raise _Unreadable(f"cannot read quantity {value!r}: {_short(exc)}") from None
     if not math.isfinite(result):
-        raise InputError(f"{value!r} is not a finite quantity", location, field)
+        raise _Unreadable(f"{value!r} is not a finite quantity")
     return result
 
 
