@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 N_AXIS = 3
@@ -240,9 +242,7 @@ class Motion:
         if not self.running or not self.blocks:
             return 0.0
         target = self.t + self.lag_s()
-        saved = self._save()
-        popped: list[Block] = []
-        try:
+        with self._looking_ahead() as popped:
             for _ in range(10000):
                 if not self.blocks or self.t >= target:
                     break
@@ -257,12 +257,6 @@ class Motion:
                     popped.append(self.blocks.popleft())
                     self._replan_from_running()
             return self.speed if self.blocks else 0.0
-        finally:
-            for b in reversed(popped):
-                self.blocks.appendleft(b)
-            self._restore(saved)
-            if not self.stopping:
-                self._replan()
 
     def flush(self) -> None:
         """Drop every queued block (jog cancel done, reset); the position stays where it is."""
@@ -388,6 +382,22 @@ class Motion:
         b.done += max(0.0, s)
         return False
 
+    @contextmanager
+    def _looking_ahead(self) -> Iterator[list[Block]]:
+        """Run the planner forward to look ahead, then put everything back: the caller appends the
+        blocks it finishes to the yielded list; on exit they are queued again, the motion state is
+        restored and the queue re-planned (unless stopping)."""
+        saved = self._save()
+        popped: list[Block] = []
+        try:
+            yield popped
+        finally:
+            for b in reversed(popped):
+                self.blocks.appendleft(b)
+            self._restore(saved)
+            if not self.stopping:
+                self._replan()
+
     def _save(self):
         return (self.t, self.speed, self.running, self.stopping, self.stop_at, [b.done for b in self.blocks])
 
@@ -421,9 +431,7 @@ class Motion:
         out: list[Segment] = []
         if not self.running or not self.blocks:
             return out
-        saved = self._save()
-        popped: list[Block] = []
-        try:
+        with self._looking_ahead() as popped:
             for _ in range(10000):
                 if not self.blocks:
                     break
@@ -439,12 +447,6 @@ class Motion:
                     self._replan_from_running()
                 elif self.stopping and self.speed <= _EPS_V:
                     break
-        finally:
-            for b in reversed(popped):
-                self.blocks.appendleft(b)
-            self._restore(saved)
-            if not self.stopping:
-                self._replan()
         return out
 
 
