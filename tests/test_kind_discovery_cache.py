@@ -144,6 +144,14 @@ def test_a_cache_that_cannot_be_written_or_read_is_only_slower(site, monkeypatch
     assert entry_cache.entries(GROUP) == [("lab_kind", "foo", "lab_kind:KIND")]
 
 
+def test_one_cache_file_per_sys_path_and_no_more_than_keep(site, monkeypatch, tmp_path):
+    cache = tmp_path / "cache" / "bench" / "kinds"
+    for i in range(entry_cache.KEEP + 3):  # python -m bench from as many working directories
+        monkeypatch.setattr(sys, "path", [str(tmp_path / f"cwd{i}"), str(site)])
+        assert entry_cache.entries(GROUP) == [("lab_kind", "foo", "lab_kind:KIND")]
+        assert len(list(cache.glob("*.txt"))) == min(i + 1, entry_cache.KEEP)
+
+
 def test_a_kind_found_through_the_cache_is_the_one_found_without_it(monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     direct = registry.discover()

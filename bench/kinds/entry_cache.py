@@ -12,7 +12,7 @@ command reads the metadata again; so does editing a declaring distribution's ent
 Not seen: an ``entry_points.txt`` edited in place (not by pip) in a distribution that did not
 declare the group before. ``bench instruments kinds`` always reads the metadata afresh and rewrites
 the cache; deleting the directory is always safe. A cache that cannot be read or written is
-ignored.
+ignored; at most :data:`KEEP` files are kept.
 """
 
 from __future__ import annotations
@@ -27,6 +27,9 @@ Entry = tuple[str, str, str]
 """One entry point: (distribution name, entry point name, value ``"module:attr"``)."""
 
 _MAGIC = "bench entry points v1"
+KEEP = 16
+"""Cache files kept (one per ``sys.path``: ``python -m bench`` puts the working directory first);
+the oldest beyond these are removed when one is written."""
 
 
 def scan(group: str) -> tuple[list[Entry], list[str] | None]:
@@ -126,3 +129,16 @@ def _write(path: os.PathLike[str], head: list[str], files: list[str], found: lis
             os.unlink(tmp)
         except OSError:
             pass
+        return
+    _prune(os.path.dirname(tmp))
+
+
+def _prune(directory: str) -> None:
+    """Remove all but the :data:`KEEP` newest cache files of ``directory``."""
+    try:
+        with os.scandir(directory) as it:
+            files = sorted(((e.stat().st_mtime_ns, e.path) for e in it if e.name.endswith(".txt")), reverse=True)
+        for _, old in files[KEEP:]:
+            os.unlink(old)
+    except OSError:
+        pass
