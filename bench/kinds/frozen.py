@@ -13,7 +13,9 @@ reads a kind (``bench validate`` included; docs/benchmarks.md, "Instrument kinds
 class shares the methods below, and making a class only reads its annotations.
 
 No field may be named ``replace``; defaults are shared between instances, so they must be
-immutable (tuples, not lists) — as a frozen dataclass's must be in practice.
+immutable (tuples, not lists) — as a frozen dataclass's must be in practice. A module declaring such
+a class writes ``from __future__ import annotations`` (the fields are read from the class's
+annotations as written, which Python 3.14 otherwise defers).
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ class _FrozenMeta(type):
     """Turns the annotated class attributes into ``__slots__`` and remembers their order and defaults."""
 
     def __new__(mcs, name: str, bases: tuple[type, ...], ns: dict[str, Any], **kw: Any) -> type:
+        if "__annotations__" not in ns and "__annotate__" in ns:  # Python >= 3.14's deferred annotations
+            raise TypeError(f"{name}: a Frozen record's module needs 'from __future__ import annotations' (its fields are read from them)")
         own = [n for n in ns.get("__annotations__", {}) if not n.startswith("_")]
         inherited: tuple[str, ...] = ()
         defaults: dict[str, Any] = {}
