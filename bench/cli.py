@@ -100,8 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
 def parser_for(argv: list[str]) -> argparse.ArgumentParser:
     """The parser of the command line ``argv``: when it names a command first (after ``--debug``
     only), a parser with that command's subparser alone, which parses ``argv`` exactly as
-    :func:`build_parser`'s does; else (no command, ``--help``, a misspelt command) every command's."""
+    :func:`build_parser`'s does; for ``--version`` first, none; else (no command, ``--help``, a
+    misspelt command) every command's."""
     first = next((i for i, word in enumerate(argv) if word != "--debug"), len(argv))
+    if first < len(argv) and argv[first] == "--version":
+        return _build_parser("")[0]  # it prints the version and exits before any command is looked at
     if first < len(argv) and not argv[first].startswith("-"):
         parser, found = _build_parser(argv[first])
         if found:

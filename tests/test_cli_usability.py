@@ -236,8 +236,16 @@ def test_the_parser_of_one_command_is_that_command_of_the_whole_parser():
             alone = sub_of(parser_for(argv))
             assert list(alone) == [name], argv
             assert alone[name].format_help() == parser.format_help(), argv
-    for argv in ([], ["--help"], ["--version"], ["valdate", "x.yaml"], ["-h", "validate"]):
+    for argv in ([], ["--help"], ["valdate", "x.yaml"], ["-h", "validate"], ["--debug", "--help"]):
         assert list(sub_of(parser_for(argv))) == list(whole), argv
+    for argv in (["--version"], ["--debug", "--version", "validate"]):  # the version, before any command is looked at
+        said = []
+        for parser in (parser_for(argv), build_parser()):
+            out = io.StringIO()
+            with pytest.raises(SystemExit) as stop, contextlib.redirect_stdout(out):
+                parser.parse_args(argv)
+            said.append((stop.value.code, out.getvalue()))
+        assert said[0] == said[1] and said[0][0] == 0 and said[0][1].startswith("bench "), (argv, said)
     args = ["validate", "procedures/startup_profile.yaml", "--config", "configs/sim.yaml", "-p", "cold=-20degC", "--debug"]
     assert vars(parser_for(args).parse_args(args)) == vars(build_parser().parse_args(args))
     for bad in (["validate", "--no-such-option", "x.yaml"], ["validate"], ["instruments", "bogus"], ["runs", "--since", "x", "-z"]):
