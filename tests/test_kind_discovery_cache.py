@@ -45,6 +45,9 @@ def test_a_frozen_record_behaves_as_the_frozen_dataclass_it_replaces():
         assert f == _AsFrozen(*args, **kwargs) and hash(f) == hash(_AsFrozen(*args, **kwargs)) and hash(f) == hash(
             dataclasses.astuple(d))
     a = _AsFrozen("quantity", "s")
+    match a:
+        case _AsFrozen(kind, units, numbers):
+            assert (kind, units, numbers) == ("quantity", "s", (0, 999)) and _AsFrozen.__match_args__ == _AsDataclass.__match_args__
     assert a != _AsFrozen("quantity", "Hz") and a != _AsDataclass("quantity", "s") and a != ("quantity", "s", (0, 999))
     assert a.replace(units="Hz") == _AsFrozen("quantity", "Hz") and a.units == "s"
     for bad in (lambda: setattr(a, "units", "Hz"), lambda: delattr(a, "units"), lambda: setattr(a, "other", 1)):

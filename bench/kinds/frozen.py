@@ -51,6 +51,7 @@ class _FrozenMeta(type):
             raise TypeError(f"{name}: field {late[0]!r} without a default follows one with a default")
         ns["__slots__"] = tuple(n for n in own if n not in inherited)
         ns["_fields"] = fields
+        ns["__match_args__"] = fields  # ``case Signal(name, units):`` as with a dataclass
         ns["_defaults"] = defaults
         return super().__new__(mcs, name, bases, ns, **kw)
 
