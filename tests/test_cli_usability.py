@@ -238,24 +238,24 @@ def test_the_parser_of_one_command_is_that_command_of_the_whole_parser():
             assert alone[name].format_help() == parser.format_help(), argv
     for argv in ([], ["--help"], ["valdate", "x.yaml"], ["-h", "validate"], ["--debug", "--help"]):
         assert list(sub_of(parser_for(argv))) == list(whole), argv
-    for argv in (["--version"], ["--debug", "--version", "validate"]):  # the version, before any command is looked at
+    def exits(argv: list[str]) -> list[tuple[object, str, str]]:
+        """Exit code, stdout and stderr of parsing ``argv`` that ends the program: one-command, whole."""
         said = []
         for parser in (parser_for(argv), build_parser()):
-            out = io.StringIO()
-            with pytest.raises(SystemExit) as stop, contextlib.redirect_stdout(out):
+            out, err = io.StringIO(), io.StringIO()
+            with pytest.raises(SystemExit) as stop, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
                 parser.parse_args(argv)
-            said.append((stop.value.code, out.getvalue()))
+            said.append((stop.value.code, out.getvalue(), err.getvalue()))
+        return said
+
+    for argv in (["--version"], ["--debug", "--version", "validate"]):  # the version, before any command is looked at
+        said = exits(argv)
         assert said[0] == said[1] and said[0][0] == 0 and said[0][1].startswith("bench "), (argv, said)
     args = ["validate", "procedures/startup_profile.yaml", "--config", "configs/sim.yaml", "-p", "cold=-20degC", "--debug"]
     assert vars(parser_for(args).parse_args(args)) == vars(build_parser().parse_args(args))
     for bad in (["validate", "--no-such-option", "x.yaml"], ["validate"], ["instruments", "bogus"], ["runs", "--since", "x", "-z"]):
-        said = []
-        for parser in (parser_for(bad), build_parser()):
-            err = io.StringIO()
-            with pytest.raises(SystemExit) as stop, contextlib.redirect_stderr(err):
-                parser.parse_args(bad)
-            said.append((stop.value.code, err.getvalue()))
-        assert said[0] == said[1] and said[0][0] == 2 and "error:" in said[0][1], (bad, said)
+        said = exits(bad)
+        assert said[0] == said[1] and said[0][0] == 2 and "error:" in said[0][2], (bad, said)
     r = run_cli("sim")  # a command without its action: the whole usage, as before
     assert r.returncode == 2 and all(f" {c} " in r.stdout for c in ("validate", "replay", "sim", "fleet")), r.stdout
 
