@@ -51,8 +51,70 @@ PARAM_HELP = ("override a procedure parameter, with units where it has them, e.g
               "(repeatable; default: the procedure's values)")
 
 
+class _OneCommand:
+    """The subparsers of :func:`build_parser` when one command was asked for: that command's parser
+    is made, every other one is :data:`_SKIPPED`. argparse builds the ~30 commands' parsers in
+    ~10 ms, a twentieth of ``bench validate``'s start (docs/benchmarks.md, "Start-up")."""
+
+    def __init__(self, sub: argparse._SubParsersAction, name: str) -> None:
+        self._sub, self._name, self.found = sub, name, False
+
+    def add_parser(self, name: str, **kwargs: object) -> argparse.ArgumentParser:
+        if name != self._name:
+            return _SKIPPED  # type: ignore[return-value]
+        self.found = True
+        return self._sub.add_parser(name, **kwargs)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._sub, name)
+
+
+class _Skipped:
+    """A command's parser that is not made: takes every call of argparse's API and keeps nothing."""
+
+    def __getattr__(self, name: str) -> object:
+        return self._ignore
+
+    def _ignore(self, *args: object, **kwargs: object) -> "_Skipped":
+        return self
+
+
+_SKIPPED = _Skipped()
+
+_ADDED_BY = {"bench.replay.cli": ("replay",), "bench.cli_analysis": ("calibrate", "import", "report", "diagnose"),
+             "bench.cli_catalog": ("runs", "catalog"), "bench.cli_fleet": ("fleet",), "bench.cli_web": ("serve",),
+             "bench.cli_unit": ("unit",)}
+"""The commands whose parsers each module adds: a parser for another command does not import it.
+A command missing here still works (its parser is then built whole; the CLI tests fail)."""
+
+
+def _wanted(only: str | None, module: str) -> bool:
+    return only is None or only in _ADDED_BY[module]
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``bench`` parser; every command's ``--help`` has its exit codes and examples."""
+    return _build_parser(None)[0]
+
+
+def parser_for(argv: list[str]) -> argparse.ArgumentParser:
+    """The parser of the command line ``argv``: when it names a command first (after ``--debug``
+    only), a parser with that command's subparser alone, which parses ``argv`` exactly as
+    :func:`build_parser`'s does; for ``--version`` first, none; else (no command, ``--help``, a
+    misspelt command) every command's."""
+    first = next((i for i, word in enumerate(argv) if word != "--debug"), len(argv))
+    if first < len(argv) and argv[first] == "--version":
+        return _build_parser("")[0]  # it prints the version and exits before any command is looked at
+    if first < len(argv) and not argv[first].startswith("-"):
+        parser, found = _build_parser(argv[first])
+        if found:
+            return parser
+    return build_parser()
+
+
+def _build_parser(only: str | None) -> tuple[argparse.ArgumentParser, bool]:
+    """The ``bench`` parser with every command's subparser, or with ``only``'s (and whether there is
+    such a command)."""
     p = _Parser(prog="bench", top_level=True,
                 description="Ground-support test benches for spacecraft attitude sensors: run YAML test procedures on real "
                             "or simulated instruments, record every run to an HDF5 run file, analyse and report it.",
@@ -65,6 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
                               notes="From the instruments on the bench to a first real run: docs/hardware.md."))
     p.add_argument("--version", action="version", version=f"bench {__version__}", help="print the version and exit")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    if only is not None:
+        sub = _OneCommand(sub, only)  # type: ignore[assignment]
 
     r = sub.add_parser(
         "run", help="run a procedure (real instruments unless --sim)",
@@ -140,9 +204,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--interval", default="1 s", help="refresh interval, a duration: 500ms, 2 s; a bare number is s (default '1 s'; 0.05 s to 60 s)")
     w.add_argument("--once", action="store_true", help="print one snapshot and exit")
 
-    from bench.replay.cli import add_replay_parser
+    if _wanted(only, "bench.replay.cli"):
+        from bench.replay.cli import add_replay_parser
 
-    add_replay_parser(sub)
+        add_replay_parser(sub)
 
     i = sub.add_parser(
         "inspect", help="summarise a run file (also while it is being written)",
@@ -200,7 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
         "kinds", help="list the installed instrument kinds and the package each comes from",
         description="The instrument kinds bench knows here (a config's 'driver:'), found by entry point (group "
                     "bench.instruments): bench's own and those of installed packages, with the package, whether it has a "
-                    "simulator, the procedure steps it adds and its signals with units (docs/instruments.md).",
+                    "simulator, the procedure steps it adds and its signals with units (docs/instruments.md). It reads every "
+                    "package's entry points afresh and refreshes bench's cache of them (~/.cache/bench/kinds).",
         epilog=epilog("bench instruments kinds", "bench instruments kinds --json",
                       ok="every kind listed", failed="a package declares a kind that could not be loaded (its line says why)"))
     kd.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
@@ -222,20 +288,26 @@ def build_parser() -> argparse.ArgumentParser:
     li.add_argument("--station", default=None, help="station name recorded in every run file (default: the host name)")
     add_force(li)
 
-    from bench.cli_analysis import add_analysis_parsers
-    from bench.cli_catalog import add_catalog_parsers
+    if _wanted(only, "bench.cli_analysis"):
+        from bench.cli_analysis import add_analysis_parsers
 
-    add_analysis_parsers(sub)
-    add_catalog_parsers(sub)
-    from bench.cli_fleet import add_fleet_parser
+        add_analysis_parsers(sub)
+    if _wanted(only, "bench.cli_catalog"):
+        from bench.cli_catalog import add_catalog_parsers
 
-    add_fleet_parser(sub)
-    from bench.cli_web import add_serve_parser
+        add_catalog_parsers(sub)
+    if _wanted(only, "bench.cli_fleet"):
+        from bench.cli_fleet import add_fleet_parser
 
-    add_serve_parser(sub)
-    from bench.cli_unit import add_unit_parser
+        add_fleet_parser(sub)
+    if _wanted(only, "bench.cli_web"):
+        from bench.cli_web import add_serve_parser
 
-    add_unit_parser(sub)
+        add_serve_parser(sub)
+    if _wanted(only, "bench.cli_unit"):
+        from bench.cli_unit import add_unit_parser
+
+        add_unit_parser(sub)
 
     sk = sub.add_parser(
         "soak", help="run the procedure library back to back on the simulated lab with random faults",
@@ -275,11 +347,11 @@ def build_parser() -> argparse.ArgumentParser:
                       bad="bad config, unknown --instrument, or its ports are taken (another 'bench sim serve'?)"))
     sv.add_argument("--config", type=Path, required=True, help="lab config YAML file whose 'sim' sections are served (required)")
     sv.add_argument("--instrument", action="append", help="only these instruments (repeatable; default: every one with a 'sim' section)")
-    return p
+    return p, only is None or sub.found  # type: ignore[attr-defined]
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = parser_for(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     if not args.debug:
         # drivers turn pymodbus's failures into typed errors; its own log lines would only repeat them
@@ -347,7 +419,7 @@ def main(argv: list[str] | None = None) -> int:
             from bench.cli_fleet import cmd_fleet
 
             return cmd_fleet(args, console)
-        parser.print_help()
+        build_parser().print_help()  # every command's, not only the one asked for
         return EXIT_BAD_INPUT
     except InputErrors as exc:
         if args.debug:
@@ -704,7 +776,7 @@ def cmd_instruments_kinds(args: argparse.Namespace, console: Console) -> int:
 
     from bench.kinds import registry
 
-    reg = registry.registry()
+    reg = registry.rediscover()  # afresh: this is the command that says what is installed
     if args.json:
         print(json.dumps({"kinds": {k.name: {"package": k.package, "summary": k.summary, "simulator": k.sim is not None,
                                              "streams": k.streams, "steps": [d.type for d in k.steps],

@@ -9,33 +9,42 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import re
 from pathlib import Path
 from typing import Any
 
 
-def _import_pint_without_dask():  # noqa: ANN202 - returns the pint module
-    """pint looks for dask when it is imported and, where dask is installed (``bench fleet`` needs
-    it), imports it: 60 ms of every ``bench validate``. bench never gives pint dask arrays, so the
-    lookup is answered "absent" while pint is imported (a ``None`` entry in ``sys.modules``) and
-    dask stays importable afterwards."""
+_NOT_FOR_PINT = ("dask", "scipy", "babel")
+"""Optional packages pint imports, when installed, only to know they are there: dask (bench fleet
+needs it; 60 ms), scipy (a bench dependency; 8-15 ms, used by nothing of pint outside its own
+tests) and babel (locale-aware unit names, which bench never asks for; 2 ms). bench never gives pint
+dask arrays, so all three are answered "absent" while pint is imported."""
+
+
+def _import_pint_without_optional_lookups():  # noqa: ANN202 - returns the pint module
+    """pint, imported with the packages of :data:`_NOT_FOR_PINT` that are not imported yet answered
+    "absent" (a ``None`` entry in ``sys.modules`` for the time of the import): each stays
+    importable afterwards."""
     import sys
 
-    if "dask" in sys.modules or "pint" in sys.modules:
+    if "pint" in sys.modules:
         import pint as module
         return module
-    sys.modules["dask"] = None  # type: ignore[assignment]
+    hidden = [name for name in _NOT_FOR_PINT if name not in sys.modules]
+    for name in hidden:
+        sys.modules[name] = None  # type: ignore[assignment]
     try:
         import pint as module
     finally:
-        del sys.modules["dask"]
+        for name in hidden:
+            del sys.modules[name]
     return module
 
 
-pint = _import_pint_without_dask()
+pint = _import_pint_without_optional_lookups()
 
 from bench.errors import InputError, Location
+from bench.user_cache import user_cache_dir
 
 
 _DEG_ABSOLUTE = re.compile(r"(?<![A-Za-z_])(deg[CF]|degree_(?:Celsius|Fahrenheit)|celsius|fahrenheit)\b")
@@ -85,8 +94,7 @@ def registry() -> pint.UnitRegistry:
 def unit_cache_dir() -> Path:
     """Where pint's parsed definitions are cached: ``$XDG_CACHE_HOME/bench/pint`` (default
     ``~/.cache/bench/pint``)."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "bench" / "pint"
+    return user_cache_dir("pint")
 
 
 def to_units(value: Any, units: str, location: Location | None = None, field: str | None = None) -> float:

@@ -5,6 +5,8 @@ light start, actionable ``instruments check`` hints and ``bench lab init``."""
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import os
 import shutil
 import socket
@@ -218,13 +220,52 @@ def test_parser_and_version_import_nothing_heavy():
     assert not mods & set(HEAVY), sorted(mods & set(HEAVY))
 
 
+def test_the_parser_of_one_command_is_that_command_of_the_whole_parser():
+    """``bench CMD ...`` builds CMD's parser alone (bench.cli.parser_for): its help, its parsing and
+    its errors are the whole parser's; no command, ``--help`` first or a misspelt command get the whole."""
+    from bench.cli import build_parser, parser_for
+
+    def sub_of(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+        (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        return dict(action.choices)
+
+    whole = sub_of(build_parser())
+    assert len(whole) >= 20
+    for name, parser in whole.items():
+        for argv in ([name], ["--debug", name, "--help"]):
+            alone = sub_of(parser_for(argv))
+            assert list(alone) == [name], argv
+            assert alone[name].format_help() == parser.format_help(), argv
+    for argv in ([], ["--help"], ["valdate", "x.yaml"], ["-h", "validate"], ["--debug", "--help"]):
+        assert list(sub_of(parser_for(argv))) == list(whole), argv
+    def exits(argv: list[str]) -> list[tuple[object, str, str]]:
+        """Exit code, stdout and stderr of parsing ``argv`` that ends the program: one-command, whole."""
+        said = []
+        for parser in (parser_for(argv), build_parser()):
+            out, err = io.StringIO(), io.StringIO()
+            with pytest.raises(SystemExit) as stop, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                parser.parse_args(argv)
+            said.append((stop.value.code, out.getvalue(), err.getvalue()))
+        return said
+
+    for argv in (["--version"], ["--debug", "--version", "validate"]):  # the version, before any command is looked at
+        said = exits(argv)
+        assert said[0] == said[1] and said[0][0] == 0 and said[0][1].startswith("bench "), (argv, said)
+    args = ["validate", "procedures/startup_profile.yaml", "--config", "configs/sim.yaml", "-p", "cold=-20degC", "--debug"]
+    assert vars(parser_for(args).parse_args(args)) == vars(build_parser().parse_args(args))
+    for bad in (["validate", "--no-such-option", "x.yaml"], ["validate"], ["instruments", "bogus"], ["runs", "--since", "x", "-z"]):
+        said = exits(bad)
+        assert said[0] == said[1] and said[0][0] == 2 and "error:" in said[0][2], (bad, said)
+    r = run_cli("sim")  # a command without its action: the whole usage, as before
+    assert r.returncode == 2 and all(f" {c} " in r.stdout for c in ("validate", "replay", "sim", "fleet")), r.stdout
+
+
 def test_validate_and_inspect_import_only_what_they_need():
     code = ("import contextlib, io\nfrom bench.cli import main\n"
             "with contextlib.redirect_stdout(io.StringIO()):\n"
             "    assert main(['validate', 'procedures/startup_profile.yaml']) == 0\n")
-    scipy_parts = {"scipy.signal", "scipy.stats", "scipy.optimize", "scipy.interpolate", "scipy.linalg"}  # pint imports bare scipy
-    mods = _modules_after(code)
-    assert not mods & {"h5py", "pymodbus", "canopen", "can", "matplotlib", *scipy_parts}, sorted(mods & set(HEAVY))
+    mods = _modules_after(code)  # pint would import scipy (and dask, babel) only to know they are there: bench/units.py
+    assert not mods & {"h5py", "pymodbus", "canopen", "can", "matplotlib", "scipy", "dask", "babel"}, sorted(mods & set(HEAVY))
     code = code.replace("'validate', 'procedures/startup_profile.yaml'", f"'inspect', {str(SESSION_RUN)!r}")
     mods = _modules_after(code)
     assert not mods & {"scipy", "pint", "pymodbus", "canopen", "can", "matplotlib"}, sorted(mods & set(HEAVY))

@@ -12,19 +12,21 @@ Everything executable is a *dotted path* (``"package.module:name"``), imported o
 used (:func:`bench.kinds.registry.load`), as python-can's interface table holds (module, class)
 pairs: reading the records imports no driver, simulator or runner, so every layer may read them
 (a report finds the chamber's air temperature by role without importing the chamber's driver) and
-``bench validate`` starts as fast as before. This module imports nothing of bench.
+``bench validate`` starts as fast as before. The records are :class:`~bench.kinds.frozen.Frozen`
+(frozen dataclasses in all but their making: no code is generated when this module is imported);
+this module imports nothing else of bench.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
+
+from bench.kinds.frozen import Frozen
 
 # ---- the procedure schema's vocabulary (bench.procedure.schema re-exports it) --------------------
 
 
-@dataclass(frozen=True)
-class FieldSpec:
+class FieldSpec(Frozen):
     """One field of a step. ``kind``: instrument | quantity | int | bool | str | signal | choice | vibration (a file)."""
 
     kind: str
@@ -43,8 +45,7 @@ class FieldSpec:
     """For ``instrument`` fields: the instrument must be of a kind that streams (``Kind.streams``)."""
 
 
-@dataclass(frozen=True)
-class StepSpec:
+class StepSpec(Frozen):
     fields: dict[str, FieldSpec]
     doc: str
     scalar_field: str | None = None  # a step written as ``TYPE: value`` fills this field
@@ -84,8 +85,7 @@ instrument is called (docs/instruments.md, "Roles"). A kind may use others; thes
 core reads."""
 
 
-@dataclass(frozen=True)
-class Signal:
+class Signal(Frozen):
     """One signal of a kind: column ``name`` (``ch*``: a pattern, ``ch`` and a number within
     ``numbers``), its ``units`` (pint; ``""`` dimensionless), its ``role`` (:data:`ROLES`), whether it
     is an x, y, z ``vector``, and the ``label`` a report gives it (``{column}`` is replaced by the
@@ -113,8 +113,7 @@ class Signal:
         return self.name.replace("*", "N" * len(str(self.numbers[1]))) if self.name.endswith("*") else self.name
 
 
-@dataclass(frozen=True)
-class Limit:
+class Limit(Frozen):
     """A quantity a kind's steps command, with its ``units`` and the ``default`` (low, high) the
     instrument class can take (None: open). ``magnitude``: how a single value is read in a
     ``limits:`` block — ``signed`` (``10 deg/s`` means -10..10), ``positive`` (0..10), or ``""``
@@ -128,8 +127,7 @@ class Limit:
     """Where the default comes from (a document, or [U] our choice)."""
 
 
-@dataclass(frozen=True)
-class StepDef:
+class StepDef(Frozen):
     """A procedure step a kind adds: its ``type`` name, its schema ``spec``, the ``handler``
     (``"module:function"``, called as ``handler(runner, step) -> (outcome, message)``, runner layer),
     the duration ``estimate`` (``"module:function"``, ``estimate(step, ctx) -> StepEstimate``,
@@ -147,8 +145,7 @@ class StepDef:
     moves: bool = False
 
 
-@dataclass(frozen=True)
-class SimSpec:
+class SimSpec(Frozen):
     """The simulator of a kind: ``builder`` (``"module:function"``, ``builder(name, inst, ctx) ->
     SimInstrument``, sim layer), ``settings`` (``"module:function"`` reading the kind's own keys of
     a ``sim:`` section; ``""``: none), the ``transports`` ``sim.transport`` may name (default first;
@@ -165,8 +162,7 @@ LINK_WORDS = ("link", "no frames", "reconnect", "timeout", "not answer", "discon
 """Words of an abort reason that a fault of an instrument's link explains (bench/faults.py)."""
 
 
-@dataclass(frozen=True)
-class FaultDef:
+class FaultDef(Frozen):
     """A fault class a kind's simulator can be made to suffer (bench/faults.py, docs/reliability.md):
     ``start`` is ``"module:function"`` building the injector (``start(target, rng, duration)``);
     ``rank`` orders the classes of every kind in one list (the draw order of a seeded soak)."""
@@ -180,8 +176,7 @@ class FaultDef:
     rank: float = 1000.0
 
 
-@dataclass(frozen=True)
-class Envelope:
+class Envelope(Frozen):
     """An always-on safety envelope: the ``columns`` of this kind's readings must stay within its
     ``limit`` quantity's effective limits ± ``margin`` (in the limit's units), or the run aborts
     (the chamber: air and mount within its set-point limits ± 5 degC)."""
@@ -194,8 +189,7 @@ class Envelope:
     """What is watched, for people (``air and mount temperature``); default: the columns."""
 
 
-@dataclass(frozen=True)
-class RateSchedule:
+class RateSchedule(Frozen):
     """How a ``rate_steps`` block turns this kind: the step that sets a rate (``turn``, with fields
     ``instrument``, ``rate``, ``settle`` and, when ``accel`` is True, ``accel``) and the step that stops
     it (``stop`` with ``stop_fields``)."""
@@ -206,8 +200,7 @@ class RateSchedule:
     accel: bool = False
 
 
-@dataclass(frozen=True)
-class Figure:
+class Figure(Frozen):
     """A report figure of this kind's readings: ``title``, the ``signals`` plotted against run time
     (each on its own axis when their units differ) and a ``note`` under it."""
 
@@ -216,8 +209,7 @@ class Figure:
     note: str = ""
 
 
-@dataclass(frozen=True)
-class Kind:
+class Kind(Frozen):
     """One kind of instrument (see the module docstring). Times in s, rates in bit/s."""
 
     name: str
@@ -290,10 +282,15 @@ class Kind:
         return tuple(s for s in self.signals if s.role == role)
 
 
-@dataclass
 class Registry:
     """The installed kinds, by name, and what went wrong finding any (``problems``: entry point ->
     why it could not be loaded)."""
 
-    kinds: dict[str, Kind] = field(default_factory=dict)
-    problems: dict[str, str] = field(default_factory=dict)
+    __slots__ = ("kinds", "problems")
+
+    def __init__(self, kinds: dict[str, Kind] | None = None, problems: dict[str, str] | None = None) -> None:
+        self.kinds: dict[str, Kind] = {} if kinds is None else kinds
+        self.problems: dict[str, str] = {} if problems is None else problems
+
+    def __repr__(self) -> str:
+        return f"Registry(kinds={self.kinds!r}, problems={self.problems!r})"

@@ -3,8 +3,10 @@
 As python-can finds its interfaces, bench finds kinds: every installed distribution may declare
 entry points in the group ``bench.instruments``, each naming a :class:`~bench.kinds.record.Kind`
 record (``dc_supply = "bench_dc_supply:KIND"``). bench's own five are declared the same way in its
-pyproject.toml. Loading the records imports only the modules that hold them (data); drivers,
-simulators and step handlers are imported by :func:`load` when first used.
+pyproject.toml. What the distributions declare is read once and cached on disk until something is
+installed or removed (:mod:`bench.kinds.entry_cache`). Loading the records imports only the modules
+that hold them (data); drivers, simulators and step handlers are imported by :func:`load` when
+first used.
 
 A kind that cannot be loaded (an import error, not a ``Kind``, a name taken twice) does not stop
 bench: it is left out and said in :attr:`Registry.problems`, which ``bench instruments kinds``
@@ -18,6 +20,8 @@ import re
 import threading
 from typing import Any
 
+from bench.kinds import entry_cache
+from bench.kinds.entry_cache import Entry
 from bench.kinds.record import Kind, Registry
 
 GROUP = "bench.instruments"
@@ -36,8 +40,18 @@ def registry() -> Registry:
     if _registry is None:
         with _lock:
             if _registry is None:
-                _registry = discover()
+                _registry = discover(entry_cache.entries(GROUP))
     return _registry
+
+
+def rediscover() -> Registry:
+    """The installed kinds read afresh from every distribution's metadata (the entry-point cache
+    rewritten: :mod:`bench.kinds.entry_cache`), for this process from now on."""
+    global _registry
+    reg = discover(entry_cache.entries(GROUP, fresh=True))
+    with _lock:
+        _registry = reg
+    return reg
 
 
 def kinds() -> dict[str, Kind]:
@@ -66,21 +80,20 @@ def known() -> str:
     return text
 
 
-def discover() -> Registry:
-    """Read the entry points of group :data:`GROUP` and load each record."""
-    from importlib.metadata import entry_points
-
+def discover(found: list[Entry] | None = None) -> Registry:
+    """Load the record of each entry point of group :data:`GROUP`: ``found`` (distribution, name,
+    value), default read from the installed distributions' metadata."""
+    if found is None:
+        found = entry_cache.scan(GROUP)[0]
     reg = Registry()
-    names: dict[int, str] = {}  # a distribution's name parses its METADATA: once per distribution
-    found = [(_dist_name(ep, names), ep) for ep in entry_points(group=GROUP)]
-    for package, ep in sorted(found, key=lambda pe: (pe[0] != "bench", pe[0], pe[1].name)):
-        key = f"{ep.name} ({package})"
+    for package, name, value in sorted(found, key=lambda e: (e[0] != "bench", e[0], e[1])):
+        key = f"{name} ({package})"
         try:
-            record = ep.load()
+            record = _load_entry(value)
         except Exception as exc:  # noqa: BLE001 - a broken plug-in must not stop bench
             reg.problems[key] = f"{type(exc).__name__}: {exc}"
             continue
-        why = _refuse(ep.name, record, reg)
+        why = _refuse(name, record, reg)
         if why:
             reg.problems[key] = why
             continue
@@ -88,12 +101,17 @@ def discover() -> Registry:
     return reg
 
 
-def _dist_name(ep: Any, names: dict[int, str]) -> str:
-    """The name of the distribution that declares ``ep`` (``"?"`` if none), cached in ``names``."""
-    dist = getattr(ep, "dist", None)
-    if id(dist) not in names:
-        names[id(dist)] = getattr(dist, "name", "") or "?"
-    return names[id(dist)]
+_ENTRY_RE = re.compile(r"\s*([\w.]+)\s*(?::\s*([\w.]+)\s*)?(?:\[.*\]\s*)?")
+"""An entry point's value: ``module``, ``module:attr.attr``, optionally ``[extras]`` (ignored), as
+``importlib.metadata.EntryPoint.load`` reads it."""
+
+
+def _load_entry(value: str) -> Any:
+    """The object an entry point's value names (imported as ``EntryPoint.load`` would)."""
+    m = _ENTRY_RE.fullmatch(value)
+    if m is None:
+        raise ValueError(f"entry point value {value!r} is not 'module:attribute'")
+    return load(f"{m[1]}:{m[2] or ''}")
 
 
 def _refuse(ep_name: str, record: Any, reg: Registry) -> str:
@@ -109,9 +127,7 @@ def _refuse(ep_name: str, record: Any, reg: Registry) -> str:
 
 
 def _with_package(record: Kind, package: str) -> Kind:
-    from dataclasses import replace
-
-    return replace(record, package=package)
+    return record.replace(package=package)
 
 
 def load(dotted: str) -> Any:

@@ -30,6 +30,7 @@ def test_the_live_page_plots_the_supply_and_shows_its_limits(browser, tmp_path):
     (library / "power_and_wait.yaml").write_text(
         (HERE / "procedures" / "unit_power_on.yaml").read_text()
         .replace("name: unit_power_on", "name: power_and_wait")
+        .replace("  - wait: 2 s\n", "  - wait: 0.2 s\n")  # web dry-runs: wall clock, and nothing here looks at the wait
         .replace("  - record: {instrument: imu, duration: 60 s, window: powered, name: running}",
                  "  - prompt: {id: look, text: \"Supply readings on the page?\"}\n"
                  "  - record: {instrument: imu, duration: 3 s, window: powered, name: running}"))  # web dry-runs: wall clock
