@@ -96,7 +96,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         if stable:
             break
     noise = nm.findings(p, models, resid, ow.unexplained, hidden)
-    return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid))
+    return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid, noise))
 
 
 NOISE_ROUNDS = 2
