@@ -205,6 +205,16 @@ def test_real_noise_alone_names_nothing_deterministic(real_log, bg):
     check_named(bg, [], _seed("real", bg, "clean"))
 
 
+def test_a_wandering_real_noise_hour_names_nothing(real_log):
+    """The S5 background hour drawn for the warm-up's seed 0 (the phone 2.5-3.5 h into its log), with
+    nothing injected: the phone's common-mode bias wander in it took a warm-up's shape on one axis
+    and a bias step's on another (ΔBIC −20.0 and −21.5 against the best noise-only model) until the
+    threshold paid for the many slow shapes the search tries (docs/diagnose.md, against the
+    sensor's slow noise). Noise: no deterministic name, nothing unexplained."""
+    real_log("samsung_galaxy_s5.nc")
+    check_named("s5", [], _seed("real", "s5", "warmup_transient", 0))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(3))
 @pytest.mark.parametrize("name", INDEPENDENT)
