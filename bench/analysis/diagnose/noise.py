@@ -59,13 +59,18 @@ def residuals(p: Prepared, terms: list[Term], unexplained: list[dict[str, Any]])
         p.whiten = saved
 
 
-def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str] = frozenset()) -> dict[str, NoiseModel]:
+def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str] = frozenset(),
+               left: frozenset[str] | None = None) -> dict[str, NoiseModel]:
     """The noise model of each axis. It stays white (the fits ordinary least squares, slow structure
     left to the probes) when
 
     * its slow part is not stationary (:func:`bench.analysis.noise_model.stationarity`: a transient,
       a step, a drift or structure that follows the run's covariates has its power in some stretches
-      only): that is structure, not the sensor's noise;
+      only): that is structure, not the sensor's noise; but only on an axis where the probes found
+      structure (``left``, the axes with unexplained structure; None: every axis). Where no probe
+      takes it, the slow part is the sensor's noise after all, however unevenly one run spreads it
+      (a white model there would say "white" of a residual whose Allan curve is far above the white
+      line, and name nothing);
     * a noise term is hidden (``hidden``): with part of its noise vocabulary missing the model would
       give the noise another term's name."""
     out = {}
@@ -78,11 +83,15 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
             continue
         m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows)
         st = stationarity(r, m)
-        if st < IC_MIN:
+        if st < IC_MIN and (left is None or a in left):
             white = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
             white.steps.append({"component": "slow part", "d_bic": st, "accepted": False,
                                 "reason": f"not stationary (ΔBIC {st:+.0f} for separate stretches): left to the probes"})
             m = white
+        elif st < IC_MIN:
+            m.steps.append({"component": "stationarity check", "d_bic": st, "accepted": False,
+                            "reason": f"not stationary (ΔBIC {st:+.0f} for separate stretches), but no probe finds "
+                                      "structure on the axis: the sensor's noise"})
         out[a] = m
     return out
 
