@@ -450,6 +450,9 @@ def test_json_shape_summary_and_report(tmp_path):
         arw = sec["model"]["arw_deg_per_sqrt_h"]  # the generator's 0.011 deg/s at 1 Hz = 0.66 deg/√h
         assert arw == pytest.approx(session.base.noise_dps * 60.0, rel=0.1)
         assert sec["ieee952"]["arw_deg_per_sqrt_h"] == pytest.approx(arw, rel=0.15)
+        assert sec["named"] == ["angle_random_walk"], (a, sec["named"])  # white: IEEE 952's N alone
+    assert all(f"{a} noise: white" in line and "(named: angle_random_walk)" in line
+               for a, line in ((a, result.noise_line(a)) for a in "xyz")), [result.noise_line(a) for a in "xyz"]
     assert set(doc["axes"]) == {"x", "y", "z"}
     for v in doc["axes"].values():
         assert set(v) == {"rms_baseline", "rms_extended"} and all(isinstance(x, float) for x in v.values())

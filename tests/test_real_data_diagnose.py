@@ -26,7 +26,7 @@ import pytest
 from bench.analysis.dataset import load_dataset
 from bench.analysis.diagnose import diagnose
 from bench.sessions import BaselineSensor, make_session
-from tests.diagnose_shapes import INDEPENDENT, S5_MAP, background, extra, scale_against, static_datasets
+from tests.diagnose_shapes import INDEPENDENT, S5_MAP, SETTLE_S, background, extra, scale_against, static_datasets
 
 NOISE_TERMS = {"bias_instability", "rate_random_walk", "gauss_markov"}
 SLOW = os.environ.get("BENCH_SLOW") == "1"
@@ -40,15 +40,28 @@ def deterministic(result) -> list[tuple[str, str]]:
     return sorted((f.effect, f.axis) for f in result.findings if f.effect not in NOISE_TERMS)
 
 
-def check_noise_only(result, where: str) -> None:
-    """No deterministic finding, nothing unexplained, a correlated noise model named on every axis
-    with the IEEE 952 read-outs of its residual."""
+def check_noise_only(result, where: str, axes: str = "xyz") -> None:
+    """No deterministic finding, nothing unexplained, and the noise terms named on every axis with the
+    IEEE 952 read-outs of its residual: angle random walk always, and every correlated term of the
+    axis' model as a finding. An axis whose model is white must be white by the Allan read-out too:
+    no bias-instability floor resolved (at most an estimate at the curve's minimum). ``axes``: the
+    axes checked (deterministic names are checked on every axis)."""
     assert deterministic(result) == [], (where, [(f.effect, f.axis, f.params) for f in result.findings])
-    assert result.unexplained == [], (where, result.unexplained)
+    assert [u for u in result.unexplained if u["axis"] in axes] == [], (where, result.unexplained)
     for a, sec in result.noise.items():
-        assert sec["whitened"], (where, a, sec["describe"])  # real MEMS noise is not white
-        assert any(f.axis == a and f.effect in NOISE_TERMS for f in result.findings), (where, a)
-        assert sec["ieee952"]["arw_deg_per_sqrt_h"] is not None and sec["ieee952"]["arw_deg_per_sqrt_h"] > 0
+        if a not in axes:
+            continue
+        ro = sec["ieee952"]
+        assert sec["named"][0] == "angle_random_walk", (where, a, sec["named"])
+        assert ro["arw_deg_per_sqrt_h"] is not None and ro["arw_deg_per_sqrt_h"] > 0, (where, a, ro)
+        model = sec["model"]
+        correlated = [k for k, v in (("bias_instability", model["bias_instability_deg_per_h"]),
+                                     ("rate_random_walk", model["rrw_deg_per_h_per_sqrt_h"])) if v is not None]
+        correlated += ["gauss_markov"] * len(model["gauss_markov"])
+        assert sorted(sec["named"][1:]) == sorted(correlated), (where, a, sec["named"], sec["describe"])
+        assert sorted(f.effect for f in result.findings if f.axis == a) == sorted(correlated), (where, a)
+        if not correlated:  # white by the model: then no resolved floor in the Allan curve either
+            assert ro["bias_instability_deg_per_h"] is None or ro["bias_instability_read"]["estimate_only"], (where, a, ro)
 
 
 # ---- a still sensor is noise --------------------------------------------------------------------------
@@ -60,6 +73,7 @@ def test_phone_at_rest_is_noise_with_its_read_outs(real_log):
     ds = load_dataset(real_log("samsung_galaxy_s5.nc"), mapping=S5_MAP)
     result = diagnose(ds)
     check_noise_only(result, "S5")
+    assert all(sec["whitened"] for sec in result.noise.values())  # flicker on every axis (allantools' B below)
     p, _ = result._internal
     assert p.raw_rows + p.motion[0] == 214_800 and p.bin_rows > 1  # 6 h at 10 Hz as bin means
     for a, b_ref in S5_B_ALLANTOOLS.items():
@@ -69,28 +83,72 @@ def test_phone_at_rest_is_noise_with_its_read_outs(real_log):
     assert set(doc["noise"]) == {"x", "y", "z"} and "model" in doc["noise"]["x"]
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="x and z unexplained against time: the stretch starts with the tag's "
-                   "settling after handling (temperature 14.8 -> 6.0 degC in its first hour), which the temperature "
-                   "cubic does not follow; from an hour after handling nothing is unexplained (z then white) "
-                   "(docs/diagnose.md, known limits)")
-def test_tag_at_rest_is_noise(real_log):
-    """The CATS tag's shortest static stretch (12.6 h at 1 Hz, with its temperature channel; every
-    stretch: slow suite)."""
-    real_log("cats_temperature_calib.nc")
-    ds = min(static_datasets("cats"), key=len)
-    check_noise_only(diagnose(ds), ds.source)
+def _after_handling(ds, settle_s: float = SETTLE_S):
+    """The stretch from ``settle_s`` after the handling that began it, time from 0."""
+    from bench.analysis.dataset import Dataset
+
+    t = ds["time_s"]
+    sub = ds.select(np.flatnonzero(t >= t[0] + settle_s))
+    sub.columns["time_s"] = sub.columns["time_s"] - sub.columns["time_s"][0]
+    return Dataset(sub.columns, dict(ds.meta), f"{ds.source} from {settle_s:.0f} s")
+
+
+def _hours(ds) -> float:
+    return round(len(ds) / 3600.0, 1)
+
+
+TAG_STRETCHES = {"rows 374-92427": 25.6, "rows 92894-138196": 12.6, "rows 138367-183831": 12.6, "rows 184750-268081": 23.1}
+"""The CATS tag's static stretches (hours), by where they lie in the log (``static_datasets``)."""
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="of the 4 static stretches only the longest (25.6 h) is noise with a noise term "
-                   "on every axis: the 12.6-h stretch after a 9-degC settling leaves x, z unexplained against time; "
-                   "the other 12.6-h stretch is white on y and z; on the 23.1-h stretch x is unexplained against "
-                   "time and spectrum, an hour after handling too (docs/diagnose.md, known limits)")
-def test_every_static_stretch_of_the_tag_is_noise(real_log):
+@pytest.mark.parametrize("rows", list(TAG_STRETCHES))
+def test_tag_at_rest_is_noise_an_hour_after_handling(real_log, rows):
+    """The CATS tag's static stretches from an hour after handling (the first hour holds its settling,
+    below) are noise: no deterministic name, nothing unexplained, the noise terms named on every axis
+    with their read-outs; white (angle random walk alone) where 12 h with a temperature ramp leave no
+    resolved slow noise (the Allan read-out agreeing: no floor). The 23.1-h stretch's x holds a real
+    bias excursion (below): unexplained there, y and z noise."""
     real_log("cats_temperature_calib.nc")
-    for ds in static_datasets("cats"):
-        check_noise_only(diagnose(ds), ds.source)
+    stretches = static_datasets("cats")
+    assert sorted(map(_hours, stretches)) == sorted(TAG_STRETCHES.values())
+    ds = next(d for d in stretches if rows in d.source)
+    assert _hours(ds) == TAG_STRETCHES[rows]
+    result = diagnose(_after_handling(ds))
+    if _hours(ds) == 23.1:
+        assert [u["axis"] for u in result.unexplained] == ["x"], (ds.source, result.unexplained)
+        check_noise_only(result, ds.source, axes="yz")
+    else:
+        check_noise_only(result, ds.source)
+
+
+@pytest.mark.slow
+def test_tag_settling_after_handling_is_not_noise(real_log):
+    """The 12.6-h stretch whose first hour is the tag's settling after handling (temperature 14.8 ->
+    6.0 degC, the x bias moving 0.08 deg/s in its first 10 minutes, z 0.07 deg/s over 40 minutes):
+    that hour is structure, not noise, and the vocabulary has no name for it: unexplained on x and z,
+    no deterministic name. (The same stretch from an hour on is noise: the test above.)"""
+    real_log("cats_temperature_calib.nc")
+    ds = next(d for d in static_datasets("cats") if d.source.endswith("rows 92894-138196"))
+    result = diagnose(ds)
+    assert deterministic(result) == [], deterministic(result)
+    assert sorted(u["axis"] for u in result.unexplained) == ["x", "z"], result.unexplained
+
+
+@pytest.mark.slow
+def test_tag_bias_excursion_is_unexplained(real_log):
+    """The 23.1-h stretch: x's bias falls 0.16 deg/s over 6 h and then rises 0.23 deg/s within
+    90 minutes (at 8.6-9.5 degC, 7-8.5 h in), the accelerometer flat to 1 mg (the tag did not move),
+    y and z untouched, no change of the temperature rate that a lag or a gradient term would follow:
+    a bias excursion of one axis the vocabulary has no name for. Unexplained on x, never a noise
+    term or a deterministic name there."""
+    real_log("cats_temperature_calib.nc")
+    ds = next(d for d in static_datasets("cats") if _hours(d) == 23.1)
+    result = diagnose(ds)
+    assert deterministic(result) == [], deterministic(result)
+    assert [u["axis"] for u in result.unexplained] == ["x"], result.unexplained
+    assert not any(f.axis == "x" for f in result.findings), [(f.effect, f.axis) for f in result.findings]
+    assert result.noise["x"]["named"] == ["angle_random_walk"]
 
 
 # ---- effects inside real noise ----------------------------------------------------------------------
@@ -156,10 +214,30 @@ def test_real_noise_alone_names_nothing_deterministic(real_log, bg):
     check_named(bg, [], _seed("real", bg, "clean"))
 
 
+def test_a_wandering_real_noise_hour_names_nothing(real_log):
+    """The S5 background hour drawn for the warm-up's seed 0 (the phone 2.5-3.5 h into its log), with
+    nothing injected: the phone's common-mode bias wander in it took a warm-up's shape on one axis
+    and a bias step's on another (ΔBIC −20.0 and −21.5 against the best noise-only model) until the
+    threshold paid for the many slow shapes the search tries (docs/diagnose.md, against the
+    sensor's slow noise). Noise: no deterministic name, nothing unexplained."""
+    real_log("samsung_galaxy_s5.nc")
+    check_named("s5", [], _seed("real", "s5", "warmup_transient", 0))
+
+
+REAL_NOISE_MISSES = {
+    ("s5", "warmup_transient", 2): "a warm-up of 0.16 deg/s, τ 292 s, is taken into a rate_random_walk on its axis",
+    ("s5", "hysteresis", 2): "a hysteresis of 0.029 deg/s on y is taken into a rate_random_walk on its axis",
+    ("s5", "scale_factor_tempco", 0): "y is left unexplained against time next to the correctly named scale_factor_tempco",
+}
+"""Sweep cases that still fail (misses, never a wrong name), each with what happens: strict xfail
+(docs/diagnose.md, known limits)."""
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("name", INDEPENDENT)
-@pytest.mark.parametrize("bg", ["s5", "cats"])
+@pytest.mark.parametrize("bg,name,seed", [
+    pytest.param(bg, name, seed, marks=pytest.mark.xfail(strict=True, reason=REAL_NOISE_MISSES[(bg, name, seed)]))
+    if (bg, name, seed) in REAL_NOISE_MISSES else (bg, name, seed)
+    for bg in ("s5", "cats") for name in INDEPENDENT for seed in range(3)])
 def test_every_kind_in_real_noise(real_log, bg, name, seed):
     real_log("samsung_galaxy_s5.nc" if bg == "s5" else "cats_temperature_calib.nc")
     check_named(bg, [name], _seed("real", bg, name, seed))

@@ -74,7 +74,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     # have hidden it. When the correlated part is weak (the noise is mostly white) only the causes
     # named already are tested again: a small model error is no reason to search anew
     resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
-    models = nm.fit_models(p, resid, hidden)
+    models = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained))
     # against a noise model the slow noise is the model's: no catch-all random walk in the search
     search_hidden = hidden | {"rate_random_walk"}
     if not any(nm.predictable(m, resid[a]) for a, m in models.items()):
@@ -90,13 +90,13 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         p.whiten = whiten
         found, ow = _select(p, base_terms + fixed, search_hidden, progress)
         resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
-        again = nm.fit_models(p, resid, hidden)
+        again = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained))
         stable = nm.same_structure(models, again)
         models = again
         if stable:
             break
     noise = nm.findings(p, models, resid, ow.unexplained, hidden)
-    return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid))
+    return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid, noise))
 
 
 NOISE_ROUNDS = 2

@@ -7,9 +7,10 @@ read-outs (``docs/diagnose.md``, "Noise model").
   there (``unexplained`` entries whose best probe is not time): structure that lives against a
   measured covariate is never noise. What is left lives in time only: white noise, flicker, a random
   walk, correlated (Gauss-Markov) noise (:func:`bench.analysis.noise_model.fit_noise_model`).
-* **Names.** A noise term is named (a finding) only on an axis where nothing is left unexplained and
-  its kind is not hidden: ``bias_instability`` (flicker B), ``rate_random_walk`` (K),
-  ``gauss_markov`` (σ, τ_c). Its ``rms_before`` is the residual's RMS, ``rms_after`` the RMS of the
+* **Names.** A correlated noise term is named (a finding) only on an axis where nothing is left
+  unexplained and its kind is not hidden: ``bias_instability`` (flicker B), ``rate_random_walk`` (K),
+  ``gauss_markov`` (σ, τ_c). White rate noise, IEEE 952's angle random walk N, is in every axis'
+  model and named in the ``noise`` section (``named``), never a finding: it is not searched for. Its ``rms_before`` is the residual's RMS, ``rms_after`` the RMS of the
   one-step prediction error under the model (the innovations).
 * **Read-outs.** The residual's overlapping Allan deviation (:mod:`bench.analysis.allan`, the one
   home of it) read the IEEE Std 952 way (:func:`bench.analysis.allan.read_noise_terms`): angle
@@ -58,13 +59,18 @@ def residuals(p: Prepared, terms: list[Term], unexplained: list[dict[str, Any]])
         p.whiten = saved
 
 
-def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str] = frozenset()) -> dict[str, NoiseModel]:
+def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str] = frozenset(),
+               left: frozenset[str] | None = None) -> dict[str, NoiseModel]:
     """The noise model of each axis. It stays white (the fits ordinary least squares, slow structure
     left to the probes) when
 
     * its slow part is not stationary (:func:`bench.analysis.noise_model.stationarity`: a transient,
       a step, a drift or structure that follows the run's covariates has its power in some stretches
-      only): that is structure, not the sensor's noise;
+      only): that is structure, not the sensor's noise; but only on an axis where the probes found
+      structure (``left``, the axes with unexplained structure; None: every axis). Where no probe
+      takes it, the slow part is the sensor's noise after all, however unevenly one run spreads it
+      (a white model there would say "white" of a residual whose Allan curve is far above the white
+      line, and name nothing);
     * a noise term is hidden (``hidden``): with part of its noise vocabulary missing the model would
       give the noise another term's name."""
     out = {}
@@ -77,11 +83,15 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
             continue
         m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows)
         st = stationarity(r, m)
-        if st < IC_MIN:
+        if st < IC_MIN and (left is None or a in left):
             white = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
             white.steps.append({"component": "slow part", "d_bic": st, "accepted": False,
                                 "reason": f"not stationary (ΔBIC {st:+.0f} for separate stretches): left to the probes"})
             m = white
+        elif st < IC_MIN:
+            m.steps.append({"component": "stationarity check", "d_bic": st, "accepted": False,
+                            "reason": f"not stationary (ΔBIC {st:+.0f} for separate stretches), but no probe finds "
+                                      "structure on the axis: the sensor's noise"})
         out[a] = m
     return out
 
@@ -163,11 +173,20 @@ def readout(r: np.ndarray, fs: float) -> dict[str, Any]:
     return out
 
 
-def section(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
+ANGLE_RANDOM_WALK = "angle_random_walk"
+"""IEEE Std 952's name of white rate noise (N, deg/√h): the term every axis' model holds."""
+
+
+def section(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.ndarray],
+            named: list[Finding] = ()) -> dict[str, dict[str, Any]]:
     """The ``noise`` section of the result: per axis the fitted model (IEEE 952 units), whether the fits
-    were generalised least squares against it, and the Allan read-outs of the residual."""
+    were generalised least squares against it, the Allan read-outs of the residual, and ``named``: the
+    IEEE 952 noise terms named on the axis, :data:`ANGLE_RANDOM_WALK` first (white rate noise is in
+    every model: an axis whose model is white names it alone), then the correlated terms named as
+    findings (``named``)."""
     out = {}
     for a, m in models.items():
         out[a] = {"model": m.terms(), "describe": m.describe(), "whitened": a in p.whiten,
-                  "ieee952": readout(resid[a], p.fs)}
+                  "ieee952": readout(resid[a], p.fs),
+                  "named": [ANGLE_RANDOM_WALK] + [f.effect for f in named if f.axis == a]}
     return out

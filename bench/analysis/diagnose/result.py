@@ -146,17 +146,14 @@ class DiagnoseResult:
     def noise_line(self, axis: str) -> str | None:
         """The axis' noise model and the IEEE 952 read-outs of its residual, e.g. "y noise: white
         0.015 deg/√h + flicker B 29.2 deg/h + Gauss-Markov 0.033 deg/s, τc 2.02 s (named:
-        bias_instability, gauss_markov); Allan read-out: ARW 3.2 deg/√h (τ 6 s), B 34.6 deg/h (τ 362 s)"."""
+        angle_random_walk, bias_instability, gauss_markov); Allan read-out: ARW 3.2 deg/√h (τ 6 s), B 34.6 deg/h (τ 362 s)"."""
         sec = self.noise.get(axis)
         if not sec:
             return None
-        named = [f.effect for f in self.findings if f.axis == axis and CANDIDATES[f.effect].noise_term]
+        named = sec.get("named") or [f.effect for f in self.findings if f.axis == axis and CANDIDATES[f.effect].noise_term]
         text = f"{axis} noise: {sec['describe']}"
         if named:
             text += f" (named: {', '.join(named)})"
-        elif not sec["model"]["gauss_markov"] and sec["model"]["bias_instability_deg_per_h"] is None \
-                and sec["model"]["rrw_deg_per_h_per_sqrt_h"] is None:
-            text += " (white)"
         ro = sec.get("ieee952") or {}
         parts = []
         for key, label, unit in (("arw_deg_per_sqrt_h", "ARW", "deg/√h"), ("bias_instability_deg_per_h", "B", "deg/h"),
