@@ -167,14 +167,23 @@ def injected(effects: list[dict]) -> list[tuple[str, str]]:
     return sorted((e["effect"], e["axis"]) for e in effects)
 
 
+SHAPE_LEFTOVER = {"time_skew": "rate_derivative"}
+"""Document-written shapes that carry more than their term (tests/diagnose_shapes.py) -> the probe that
+must find the rest. The time skew there is a linear interpolation between samples: a delay plus the
+interpolation's own smoothing, ½·δ(1 − δ)·Δ²·ω'' at a delay δ·Δ (at 1 Hz and δ = 0.1, 0.045 s²·ω''),
+which no term names: unexplained against the rate's derivatives, nothing else."""
+
+
 def check_exact(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0, shapes: bool = False):
     session, effects = hidden_session(names, seed, rate_hz, duration_s, shapes=shapes)
     result = diagnose(session.dataset)
     assert named(result) == injected(effects), (
         f"injected {effects}\nfound {[(f.effect, f.axis, f.params, f.gain) for f in result.findings]}\n"
         f"unexplained {result.unexplained}\ndropped {result.dropped}")
-    assert result.unexplained == [], result.unexplained  # everything injected has a name
-    noisy = {f.axis for f in result.findings if f.effect in NOISE_TERMS}
+    probes = {SHAPE_LEFTOVER[n] for n in names if shapes and n in SHAPE_LEFTOVER}
+    left = [u for u in result.unexplained if u["where"][0]["probe"] in probes]
+    assert [u for u in result.unexplained if u not in left] == [], result.unexplained  # everything injected has a name
+    noisy = {f.axis for f in result.findings if f.effect in NOISE_TERMS} | {u["axis"] for u in left}
     for a, v in result.axes.items():  # the extended model is at the noise floor (flicker stays in the residual)
         if a not in noisy:
             assert v["rms_extended"] <= 1.06 * result.noise_floor[a], (a, v, result.noise_floor)
@@ -291,11 +300,8 @@ def test_clean_session_10hz_names_nothing():
 
 
 KNOWN_MISSES = {
-    ("single", "time_skew", 1): "the delay injected by linear interpolation (not the candidate's cubic spline) leaves "
-                                "structure at the rate changes that gear_eccentricity (N = 288) and a Gauss-Markov term take",
     ("unnamed", "warmup_transient", 1): "a hidden slow warm-up (τ 297 s) passes the stationarity check and is named "
                                         "a rate random walk",
-    ("unnamed", "time_skew", 1): "gear_eccentricity named for the structure a hidden time skew leaves at rate changes",
     ("unnamed", "earth_rate", 1): "the hidden Earth rate's slow part on x is named a rate random walk",
 }
 """CI cases that still fail, each with what happens: strict xfail, so a fix shows as XPASS and fails
