@@ -245,24 +245,26 @@ def _partial(p: Prepared, base_terms: list[Term], found: list[Term], final: Stat
             f"generically the term is not needed (ΔIC {d_ic:+.1f})")
 
 
-def _part_of_larger(p: Prepared, base_terms: list[Term], found: list[Term], term: Term) -> str | None:
+def _part_of_larger(p: Prepared, base_terms: list[Term], found: list[Term], term: Term,
+                    cache: dict[Any, Any]) -> str | None:
     """Why ``term`` is part of a larger structure that a probe of another family finds on its axis in
     the final model, or None. Such a probe explains more variance than the term itself
     (:data:`LARGER_SHARE`); the term must then still be needed with that probe in the model (ΔIC
     < −10), or the term only takes the share of that structure its own shape happens to match.
     (Its own family's probe is :func:`_partial`'s, with the stricter share.)"""
     a = term.axis
-    final = build_state(p, base_terms + found)
+    key = (tuple(id(t) for t in found), a)  # the final model's probes, once per model and axis
+    if key not in cache:
+        final = build_state(p, base_terms + found)
+        cache[key] = (final, _probe_evaluations(p, final, a))
+    final, evals = cache[key]
     others = _without(found, term)
     explained = build_state(p, base_terms + others).axes[a].mse - final.axes[a].mse
     own = FAMILY_PROBE.get(CANDIDATES[term.effect].family or "")
-    for name in PROBES:
-        if name == own:
+    for name, e in evals.items():
+        if name == own or not e.acceptable:
             continue
-        hit = probe_term(p, final, name, a)
-        if hit is None or not hit[1].acceptable:
-            continue
-        left = hit[1].rms_before ** 2 - hit[1].rms_after ** 2
+        left = e.rms_before ** 2 - e.rms_after ** 2
         if left <= LARGER_SHARE * explained:
             continue
         generic = probe_term(p, build_state(p, base_terms + others), name, a)
@@ -449,8 +451,9 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
     # 2a. a term that is a small part of a larger structure another probe finds on its axis must be
     # needed with that structure modelled generically (a timing error's rate-derivative structure
     # taken in part as a gear line)
+    larger: dict[Any, Any] = {}
     found = _prune(dropped, found, lambda t: t.axis in p.axes and CANDIDATES[t.effect].family is not None,
-                   lambda f, t: _part_of_larger(p, base_terms, f, t))
+                   lambda f, t: _part_of_larger(p, base_terms, f, t, larger))
 
     # 2b. a transient of one axis that the other axes' residuals share (a phone's common-mode
     # event, a bench disturbance) is not an effect of that axis
