@@ -24,6 +24,7 @@ from bench.analysis.diagnose import diagnose, write_report
 from bench.errors import InputError
 from bench.model import effects as fx
 from bench.sessions import BaselineSensor, make_session, write_csv
+from tests.diagnose_shapes import shape_leftover
 
 VOCABULARY = [
     "thermal_lag", "warmup_transient", "pressure_bias", "gear_eccentricity", "g_sensitivity",
@@ -167,21 +168,13 @@ def injected(effects: list[dict]) -> list[tuple[str, str]]:
     return sorted((e["effect"], e["axis"]) for e in effects)
 
 
-SHAPE_LEFTOVER = {"time_skew": "rate_derivative"}
-"""Document-written shapes that carry more than their term (tests/diagnose_shapes.py) -> the probe that
-must find the rest. The time skew there is a linear interpolation between samples: a delay plus the
-interpolation's own smoothing, ½·δ(1 − δ)·Δ²·ω'' at a delay δ·Δ (at 1 Hz and δ = 0.1, 0.045 s²·ω''),
-which no term names: unexplained against the rate's derivatives, nothing else."""
-
-
 def check_exact(names: list[str], seed: int, rate_hz: float = 1.0, duration_s: float = 3600.0, shapes: bool = False):
     session, effects = hidden_session(names, seed, rate_hz, duration_s, shapes=shapes)
     result = diagnose(session.dataset)
     assert named(result) == injected(effects), (
         f"injected {effects}\nfound {[(f.effect, f.axis, f.params, f.gain) for f in result.findings]}\n"
         f"unexplained {result.unexplained}\ndropped {result.dropped}")
-    probes = {SHAPE_LEFTOVER[n] for n in names if shapes and n in SHAPE_LEFTOVER}
-    left = [u for u in result.unexplained if u["where"][0]["probe"] in probes]
+    left = shape_leftover(names, result.unexplained) if shapes else []
     assert [u for u in result.unexplained if u not in left] == [], result.unexplained  # everything injected has a name
     noisy = {f.axis for f in result.findings if f.effect in NOISE_TERMS} | {u["axis"] for u in left}
     for a, v in result.axes.items():  # the extended model is at the noise floor (flicker stays in the residual)
