@@ -97,6 +97,19 @@ INDEPENDENT = ("warmup_transient", "pressure_bias", "thermal_lag", "hysteresis",
                "periodic")
 """Effects with a shape written here (the noise terms and the Earth rate come from the generator)."""
 
+SHAPE_LEFTOVER = {"time_skew": "rate_derivative"}
+"""Shapes here that carry more than their term -> the probe that must find the rest. The time skew is a
+linear interpolation between samples: a delay plus the interpolation's own smoothing,
+½·δ(1 − δ)·Δ²·ω'' at a delay δ·Δ (at 1 Hz and δ = 0.1, 0.045 s²·ω''), which no term names: it must be
+unexplained against the rate's derivatives (``docs/diagnose.md``), with no other name."""
+
+
+def shape_leftover(names: list[str], unexplained: list[dict]) -> list[dict]:
+    """The entries of a diagnose result's ``unexplained`` that are the documented rest of the shapes
+    ``names`` (:data:`SHAPE_LEFTOVER`): those whose best probe is that shape's."""
+    probes = {SHAPE_LEFTOVER[n] for n in names if n in SHAPE_LEFTOVER}
+    return [u for u in unexplained if u["where"] and u["where"][0]["probe"] in probes]
+
 
 def extra(entries: list[dict], background_noise: np.ndarray | None = None):
     """An ``extra(inputs) -> (n, 3)`` for :func:`bench.sessions.make_session`: the entries' shapes

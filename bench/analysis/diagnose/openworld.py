@@ -6,7 +6,9 @@ names (``docs/diagnose.md``, "Open world"). Noise terms are named by the noise m
 2. **Specific evidence.** A named term of a family (``"time"``: slow terms, ``"rate"``: static
    functions of the rate) must still be needed when the family's generic probe is in the model,
    whenever that probe finds structure the final model leaves: otherwise it is a partial explanation
-   of something else and is dropped (prefer "unexplained" over a weak name).
+   of something else and is dropped (prefer "unexplained" over a weak name). A term on an axis where
+   a probe of another family still finds more than the term explains must be needed with that probe
+   in the model: otherwise it is part of that larger structure (:func:`_part_of_larger`).
 3. **Unexplained.** Every generic probe (:data:`terms.PROBES`: a smooth function of time, of the rate,
    of temperature by heating/cooling, of pressure, a spectral line) is evaluated on the final model
    by the same held-out criterion as a candidate; one that is acceptable is structure left, reported
@@ -38,6 +40,9 @@ COINCIDE_RANGE = 0.05
 PARTIAL_SHARE = 0.25
 """A named term is a partial explanation when its family's probe still explains, on the final model,
 more than this share of the variance the term itself explains."""
+LARGER_SHARE = 1.0
+"""A probe of another family that still explains more than this multiple of a named term's variance
+on the term's axis makes the term a candidate part of that larger structure (:func:`_part_of_larger`)."""
 COINCIDE_SIGMA = 5.0
 """A bias step coincides with a covariate when the covariate's change across the step (means of the
 blocks either side) exceeds this many of its typical block-to-block changes..."""
@@ -240,6 +245,40 @@ def _partial(p: Prepared, base_terms: list[Term], found: list[Term], final: Stat
             f"generically the term is not needed (ΔIC {d_ic:+.1f})")
 
 
+def _part_of_larger(p: Prepared, base_terms: list[Term], found: list[Term], term: Term,
+                    cache: dict[Any, Any]) -> str | None:
+    """Why ``term`` is part of a larger structure that a probe of another family finds on its axis in
+    the final model, or None. Such a probe explains more variance than the term itself
+    (:data:`LARGER_SHARE`); the term must then still be needed with that probe in the model (ΔIC
+    < −10), or the term only takes the share of that structure its own shape happens to match.
+    (Its own family's probe is :func:`_partial`'s, with the stricter share.)"""
+    a = term.axis
+    key = (tuple(id(t) for t in found), a)  # the final model's probes, once per model and axis
+    if key not in cache:
+        final = build_state(p, base_terms + found)
+        cache[key] = (final, _probe_evaluations(p, final, a))
+    final, evals = cache[key]
+    others = _without(found, term)
+    explained = build_state(p, base_terms + others).axes[a].mse - final.axes[a].mse
+    own = FAMILY_PROBE.get(CANDIDATES[term.effect].family or "")
+    for name, e in evals.items():
+        if name == own or not e.acceptable:
+            continue
+        left = e.rms_before ** 2 - e.rms_after ** 2
+        if left <= LARGER_SHARE * explained:
+            continue
+        generic = probe_term(p, build_state(p, base_terms + others), name, a)
+        if generic is None:
+            continue
+        d_ic = _not_needed_beside(p, base_terms + others, generic[0], term, "d_ic_given_larger")
+        if d_ic is not None:
+            return (f"part of a larger structure: {PROBES[name].where} still explains "
+                    f"{math.sqrt(max(left, 0)):.2g} deg/s after it, against {math.sqrt(max(explained, 0)):.2g} deg/s "
+                    f"explained by the term, and with that structure modelled generically the term is not needed "
+                    f"(ΔIC {d_ic:+.1f})")
+    return None
+
+
 COMMON_CHECK = ("bias_step",)
 """Terms checked against the shape the other axes' residuals share (:func:`_shared`): a jump at one
 instant follows no covariate. (Not the warm-up: every axis of a sensor warms up from the same
@@ -408,6 +447,13 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
                     break
             if changed:
                 break
+
+    # 2a. a term that is a small part of a larger structure another probe finds on its axis must be
+    # needed with that structure modelled generically (a timing error's rate-derivative structure
+    # taken in part as a gear line)
+    larger: dict[Any, Any] = {}
+    found = _prune(dropped, found, lambda t: t.axis in p.axes and CANDIDATES[t.effect].family is not None,
+                   lambda f, t: _part_of_larger(p, base_terms, f, t, larger))
 
     # 2b. a transient of one axis that the other axes' residuals share (a phone's common-mode
     # event, a bench disturbance) is not an effect of that axis

@@ -869,7 +869,8 @@ class SpecificForceProbe(Probe):
 
 class RateDerivativeProbe(Probe):
     """A function of the reference rate's derivative (a timing error, a filter, an angular
-    acceleration sensitivity)."""
+    acceleration sensitivity), and the rate's curvature ω'' (what a second-order filter, a sample
+    average or a linear interpolation between samples adds: ½·δ(1 − δ)·Δ²·ω'' for a delay δ·Δ)."""
 
     name = "probe:rate_derivative"
     where = "rate derivative (timing, filtering)"
@@ -883,8 +884,9 @@ class RateDerivativeProbe(Probe):
     def build(self, p, axis, nl, ctx):
         def cols():
             d = np.gradient(p.ref_axis(axis), p.t)
+            d2 = np.gradient(d, p.t)  # a second-order filter, a sample average or an interpolation: ∝ ω''
             h = _Hats.columns(d, self.KNOTS)
-            return np.column_stack([d, h]) if h is not None else d[:, None]
+            return np.column_stack([d, d2, h]) if h is not None else np.column_stack([d, d2])
         return Built(cols={axis: _cached(p, ("probe_drate", axis), cols)})
 
 
