@@ -16,9 +16,10 @@ received a program line twice, and did what GRBL does with a repeated incrementa
   late, after later lines). :func:`serialise_streaming` puts the two under one lock.
 * After the welcome message grbl-streamer sends ``$$`` (reader thread) and, once polling, ``$#`` and
   ``$G`` (poll thread), which its character counting does not count. A program started before they
-  are answered gets their ``ok`` counted as its own (the job "completes" a line early) or has them
-  refused with ``error:8`` once the bench runs (GRBL refuses ``$$`` and ``$#`` while moving). The
-  test now starts the program once the sender's own start-up requests are answered.
+  are answered gets their ``ok`` counted as its own (the job "completes" a line early), or they
+  reach GRBL after the program's first moves, and GRBL refuses them with ``error:8`` (one run here saw two ``error:``
+  answers; not captured byte by byte). The test starts the program once the sender's own start-up
+  requests are answered.
 
 Each wait is for the event it names, bounded by WAIT_S (generous: on a loaded machine the threads of
 grbl-streamer, the pty server and pytest share a starved core). A failure says what each side saw:
@@ -29,7 +30,6 @@ angle, and any exception that ended a thread (the pty server's, or grbl-streamer
 from __future__ import annotations
 
 import threading
-import time
 import traceback
 
 import pytest
