@@ -230,7 +230,8 @@ def _partial(p: Prepared, base_terms: list[Term], found: list[Term], final: Stat
     ``a`` of the final model (``left``: the variance the probe still explains there), or None: it
     must explain more than PARTIAL_SHARE⁻¹ times what it leaves, and be needed with the probe in."""
     others = _without(found, term)
-    explained = build_state(p, base_terms + others).axes[a].mse - final.axes[a].mse
+    without = build_state(p, base_terms + others)
+    explained = without.axes[a].mse - final.axes[a].mse
     where = PROBES[probe_name].where
     if left > PARTIAL_SHARE * explained:
         return (f"partial explanation: {where} still explains {math.sqrt(max(left, 0)):.2g} deg/s after it, against "
@@ -259,7 +260,8 @@ def _part_of_larger(p: Prepared, base_terms: list[Term], found: list[Term], term
         cache[key] = (final, _probe_evaluations(p, final, a))
     final, evals = cache[key]
     others = _without(found, term)
-    explained = build_state(p, base_terms + others).axes[a].mse - final.axes[a].mse
+    without = build_state(p, base_terms + others)
+    explained = without.axes[a].mse - final.axes[a].mse
     own = FAMILY_PROBE.get(CANDIDATES[term.effect].family or "")
     for name, e in evals.items():
         if name == own or not e.acceptable:
@@ -267,7 +269,7 @@ def _part_of_larger(p: Prepared, base_terms: list[Term], found: list[Term], term
         left = e.rms_before ** 2 - e.rms_after ** 2
         if left <= LARGER_SHARE * explained:
             continue
-        generic = probe_term(p, build_state(p, base_terms + others), name, a)
+        generic = probe_term(p, without, name, a)
         if generic is None:
             continue
         d_ic = _not_needed_beside(p, base_terms + others, generic[0], term, "d_ic_given_larger")
