@@ -27,7 +27,8 @@ import numpy as np
 from bench.analysis.diagnose.data import Prepared
 from bench.analysis.diagnose.engine import Term, build_state
 from bench.analysis.diagnose.result import Finding
-from bench.analysis.noise_model import IC_MIN, SLOW_SAMPLES, NoiseModel, fit_noise_model, stationarity
+from bench.analysis.noise_model import (IC_MIN, SLOW_SAMPLES, NoiseModel, fit_noise_model, stationarity,
+                                       stationarity_test)
 
 KINDS = {"bias_instability": "flicker", "rate_random_walk": "rrw", "gauss_markov": "gm"}
 """Vocabulary noise term -> noise-model component kind."""
@@ -77,19 +78,29 @@ observed structure is beyond the model when it is larger than in every one, a Mo
 1/(GOF_DRAWS + 1) = 5 % false alarm."""
 GOF_SEED = 952
 """Fixed seed of those realisations: the engine's answer does not change from run to run."""
+UNEVEN_P = 0.05
+"""Level of the stationarity test (:func:`bench.analysis.noise_model.stationarity_test`) that
+:func:`beyond_noise` also asks for."""
 
 
 def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], axes: frozenset[str]) -> dict[str, Any]:
-    """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose structure in time is
-    larger than their own fitted noise model makes: axis -> evidence. The time probe's ΔIC on the
-    model ``terms`` (:func:`noise_terms`: the fits without prewhitening) is compared with its ΔIC on
-    :data:`GOF_DRAWS` series in which the axis' residual is replaced by a realisation of the noise
-    model fitted to it. A random walk, flicker or the sensor's own wander fitted to the residual makes
-    structure of the observed size (the model was fitted to it); a transient or a thermal lag the model
-    took for slow noise makes more than any realisation (``docs/diagnose.md``, "Noise model": what
-    decides between slow noise and structure). The decision is made here, on the unwhitened fits,
-    and kept through the whitened rounds: a whitener with the slow part in it hides the structure it
-    is asked about."""
+    """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
+    not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, each a test at
+    5 %, together about 0.25 % for a random walk (they are independent under the model):
+
+    * **uneven in time**: the stationarity likelihood ratio (four stretches, each its own slow
+      variances) at :data:`UNEVEN_P` as a χ² test (not the BIC of :func:`fit_models`, which asks for
+      p ≈ 1e-5; the S5 phone's own wander is uneven at p ≈ 0.01 and passes that);
+    * **larger than the model makes**: the time probe's ΔIC on the model ``terms``
+      (:func:`noise_terms`: the fits without prewhitening) below its ΔIC on every one of
+      :data:`GOF_DRAWS` series in which the axis' residual is replaced by a realisation of the noise
+      model fitted to it. A model fitted to a random walk, flicker or the phone's wander makes structure
+      of the observed size (it was fitted to it); a transient or a thermal lag it took for slow noise
+      can make more than any realisation.
+
+    ``docs/diagnose.md``, 6b "Larger than the model makes". The decision is made on the unwhitened
+    fits and kept through the whitened rounds: a whitener with the slow part in it hides the structure
+    it is asked about."""
     from bench.analysis.diagnose.openworld import probe_term
 
     def time_d_ic(q: Prepared) -> float:
@@ -104,6 +115,9 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
             m = fit_noise_model(resid[a], 1.0 / p.fs, p.bin_rows)
             if not has_slow_part(m):
                 continue  # the model takes no slow structure: the probes keep what they find
+            lr, p_uneven = stationarity_test(resid[a], m)
+            if p_uneven >= UNEVEN_P:
+                continue
             observed = time_d_ic(p)
             rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
             fitted = saved_g[a] - resid[a]
@@ -115,7 +129,8 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
                     break  # as large as observed: within the model
             p.gyro = saved_g
             if min(draws) > observed:
-                out[a] = {"d_ic_time": observed, "d_ic_draws_min": min(draws), "model": m.describe()}
+                out[a] = {"d_ic_time": observed, "d_ic_draws_min": min(draws), "model": m.describe(),
+                          "uneven_chi2": lr, "uneven_p": p_uneven}
     finally:
         p.whiten, p.gyro = saved_w, saved_g
     return out
@@ -172,7 +187,8 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
             m.steps.append({"component": "slow part", "d_bic": ev["d_ic_time"], "accepted": False,
                             "reason": f"structure in time (time probe ΔIC {ev['d_ic_time']:+.0f}) beyond what "
                                       f"{ev['model']} makes ({GOF_DRAWS} realisations, none below "
-                                      f"{ev['d_ic_draws_min']:+.0f}): left to the probes"})
+                                      f"{ev['d_ic_draws_min']:+.0f}) and uneven in time (χ² {ev['uneven_chi2']:.1f}, "
+                                      f"p {ev['uneven_p']:.2g}): left to the probes"})
             out[a] = m
             continue
         m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows)
