@@ -114,7 +114,7 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     p.whiten = {}
     try:
         for a in sorted(axes):
-            m = fit_noise_model(resid[a], 1.0 / p.fs, p.bin_rows)
+            m = _full_model(p, a, resid[a])
             if not has_slow_part(m):
                 continue  # the model takes no slow structure: the probes keep what they find
             lr, p_uneven = stationarity_test(resid[a], m)
@@ -136,6 +136,14 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     finally:
         p.whiten, p.gyro = saved_w, saved_g
     return out
+
+
+def _full_model(p: Prepared, a: str, r: np.ndarray) -> NoiseModel:
+    """Axis ``a``'s noise model with every component allowed, fitted once per residual array (asked
+    for by :func:`beyond_noise` and then by :func:`fit_models` on the same residual)."""
+    from bench.analysis.diagnose.terms import _per_residual
+
+    return _per_residual(p, "noise_model", a, r, lambda x: fit_noise_model(x, 1.0 / p.fs, p.bin_rows))
 
 
 def has_slow_part(m: NoiseModel) -> bool:
@@ -193,7 +201,7 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
                                       f"p {ev['uneven_p']:.2g}): left to the probes"})
             out[a] = m
             continue
-        m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows)
+        m = _full_model(p, a, r)
         st = stationarity(r, m)
         if st < IC_MIN and (left is None or a in left):
             white = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
