@@ -364,14 +364,35 @@ def stationarity(r: np.ndarray, model: NoiseModel, parts: int = PARTS) -> float:
     each stretch under both; band Whittle likelihood of each stretch). Strongly negative when the slow
     part is not stationary noise but a transient, a step, a drift or structure that follows a
     covariate through the run (its power sits in some stretches only). +inf without slow components
-    (nothing to test) or when the stretches are too short."""
+    (nothing to test) or when the stretches are too short. (:func:`stationarity_test`: the same
+    likelihood ratio as a test of one hypothesis at a stated level.)"""
+    lr, dof, m = _stationarity_lr(r, model, parts)
+    return math.inf if dof == 0 else -lr + dof * math.log(max(m, 2))
+
+
+def stationarity_test(r: np.ndarray, model: NoiseModel, parts: int = PARTS) -> tuple[float, float]:
+    """(likelihood-ratio statistic, p-value) of :func:`stationarity`'s comparison as a test of the one
+    hypothesis "the slow part is the same noise in every stretch": under it the statistic is about χ²
+    with ``parts`` × (slow components) degrees of freedom (clipped at 0 per stretch, so the p-value
+    errs high). (nan, 1.0) when there is nothing to test."""
+    from scipy.stats import chi2
+
+    lr, dof, _ = _stationarity_lr(r, model, parts)
+    if dof == 0:
+        return float("nan"), 1.0
+    return lr, float(chi2.sf(lr, dof))
+
+
+def _stationarity_lr(r: np.ndarray, model: NoiseModel, parts: int) -> tuple[float, int, int]:
+    """(2·Δ log-likelihood summed over the stretches, its degrees of freedom, ordinates used); dof 0:
+    no slow component, or stretches too short."""
     fast = [True] + [False] * (model.flicker_b > 0) + [False] * (model.rrw_k > 0) + [
         t < SLOW_SAMPLES * model.dt_s for _, t in model.gm]
     fast = np.asarray(fast)
     k_slow = int((~fast).sum())
     n = r.shape[0] // parts
     if k_slow == 0 or n < 64:
-        return math.inf
+        return 0.0, 0, 0
     th = _theta(model)
     lr, m = 0.0, 0
     for q in range(parts):
@@ -381,7 +402,7 @@ def stationarity(r: np.ndarray, model: NoiseModel, parts: int = PARTS) -> float:
         _, ll_shared = _fit(G[:, fast], b, th[fast], offset=G[:, ~fast] @ th[~fast])
         lr += 2.0 * max(ll_free - ll_shared, 0.0)
         m += b.ordinates
-    return -lr + parts * k_slow * math.log(max(m, 2))
+    return lr, parts * k_slow, m
 
 
 def _refine_gm(G: np.ndarray, b: _Bands, theta: np.ndarray, tau: float, dt: float, duration: float,

@@ -47,7 +47,7 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
     first sample's time when the log starts within the first minute of power (module ``data``,
     :data:`~bench.analysis.diagnose.data.POWER_ON_DEFAULT`).
     """
-    del seed  # deterministic: blocked folds, grids, no random draws
+    del seed  # deterministic: blocked folds, grids, fixed-seed draws (noise.beyond_noise)
     from bench.analysis.diagnose.blas import single_thread
 
     unknown = set(hidden) - set(CANDIDATES)
@@ -73,8 +73,13 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     # against it (generalised least squares): correlated noise may have passed for structure, and may
     # have hidden it. When the correlated part is weak (the noise is mostly white) only the causes
     # named already are tested again: a small model error is no reason to search anew
-    resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
-    models = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained))
+    white = nm.noise_terms(p, base_terms + fixed + ow.found, ow.unexplained)
+    resid = nm.residuals(p, white, [])
+    # slow structure in time larger than the noise model fitted to it makes is structure: decided on
+    # the unwhitened fits and kept through the rounds (a whitener with the slow part in it hides it)
+    white_left = frozenset(u["axis"] for u in ow.unexplained)
+    structure = {} if hidden & set(nm.KINDS) else nm.beyond_noise(p, white, resid, white_left)
+    models = nm.fit_models(p, resid, hidden, white_left, structure)
     # against a noise model the slow noise is the model's: no catch-all random walk in the search
     search_hidden = hidden | {"rate_random_walk"}
     if not any(nm.predictable(m, resid[a]) for a, m in models.items()):
@@ -90,7 +95,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         p.whiten = whiten
         found, ow = _select(p, base_terms + fixed, search_hidden, progress)
         resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
-        again = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained))
+        again = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained), structure)
         stable = nm.same_structure(models, again)
         models = again
         if stable:
