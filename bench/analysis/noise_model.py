@@ -64,6 +64,13 @@ GM_PER_DECADE = 3
 GM_RESOLVED = 1.0 / 3.0
 """A Gauss-Markov correlation time is at most this share of the record: the spectrum must show its
 roll-off (a longer one is a random walk within the record, which the ``rrw`` component is)."""
+GM_MIN_SAMPLES = 2.0 / math.pi
+"""... and at least this many samples: its corner f_c = 1/(2π τ_c) lies at or below half the Nyquist
+frequency 1/(2Δ), so the band shows the plateau and an octave of the 1/f² fall. A shorter process is,
+at the sampled rate, a tilt of a nearly flat spectrum (its sampled AR(1) density falls by less than
+(1+φ)²/(1−φ)² = 2.3 from 0 to Nyquist), which an anti-alias filter, bin averaging or an aliased hump
+makes as well: it is part of the white rate noise (its low-frequency level is what the Allan −½ line
+reads), not a resolved Gauss-Markov term. A fitted τ_c at either end of the grid is not resolved."""
 WHITE_FLOOR = 1e-6
 """The white variance is at least this share of the series' variance (the filter needs R > 0)."""
 
@@ -274,7 +281,7 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
     G = _basis("white", b.omega, dt_s, duration)[:, None]
     theta, ll = _fit(G, b, np.array([var]))
     model.loglik = ll
-    lo_tau, hi_tau = 0.5 * dt_s, GM_RESOLVED * duration
+    lo_tau, hi_tau = GM_MIN_SAMPLES * dt_s, GM_RESOLVED * duration
     if max_tau_s is not None:
         hi_tau = max(min(hi_tau, max_tau_s), 1.01 * lo_tau)
     taus = np.geomspace(lo_tau, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / lo_tau)) + 1, 2))
@@ -297,9 +304,13 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
                 share = float(np.max(th[-1] * col / np.maximum(G2 @ th, 1e-300)))
                 tried.append((d_bic, k_, tau, th, ll2, col, share))
         for d_bic, k_, tau, th, ll2, col, share in sorted(tried, key=lambda x: x[0]):
-            if k_ == "gm" and tau >= 0.99 * hi_tau:
-                continue  # a correlation time at the top of the grid is not resolved
+            if k_ == "gm" and not _resolved(tau, lo_tau, hi_tau):
+                continue  # a correlation time at an end of the grid is not resolved
             if d_bic < -ic_min and share >= MATERIAL_SHARE:
+                if k_ == "gm":
+                    tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, lo_tau, hi_tau)
+                    if not _resolved(tau, lo_tau, hi_tau):
+                        continue  # the likelihood runs to an end of the grid once refined
                 best = (d_bic, k_, tau, th, ll2, col, share)
                 break
         if best is None:
@@ -308,8 +319,6 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
                 model.steps.append({"component": k_, "tau_s": tau, "d_bic": d_bic, "accepted": False})
             break
         d_bic, k_, tau, th, ll2, col, share = best
-        if k_ == "gm":
-            tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, hi_tau)
         comps.append((k_, tau))
         G = np.column_stack([G, col])
         theta, ll = th, ll2
@@ -384,14 +393,20 @@ def stationarity(r: np.ndarray, model: NoiseModel, parts: int = PARTS) -> float:
     return -lr + parts * k_slow * math.log(max(m, 2))
 
 
+def _resolved(tau: float, lo_tau: float, hi_tau: float) -> bool:
+    """Whether a Gauss-Markov correlation time lies inside the grid, not at one of its ends
+    (:data:`GM_MIN_SAMPLES`, :data:`GM_RESOLVED`): at an end the likelihood would go on past it."""
+    return 1.02 * lo_tau < tau < 0.99 * hi_tau
+
+
 def _refine_gm(G: np.ndarray, b: _Bands, theta: np.ndarray, tau: float, dt: float, duration: float,
-               th: np.ndarray, ll: float, hi_tau: float) -> tuple[float, np.ndarray, float, np.ndarray]:
+               th: np.ndarray, ll: float, lo_tau: float, hi_tau: float) -> tuple[float, np.ndarray, float, np.ndarray]:
     """The Gauss-Markov correlation time refined between the grid neighbours (golden section on
-    log τ of the profiled likelihood)."""
+    log τ of the profiled likelihood, within [``lo_tau``, ``hi_tau``])."""
     from scipy.optimize import minimize_scalar
 
     step = math.log(10.0) / GM_PER_DECADE
-    lo = max(math.log(tau) - step, math.log(0.5 * dt))
+    lo = max(math.log(tau) - step, math.log(lo_tau))
     hi = max(min(math.log(tau) + step, math.log(hi_tau)), lo)
 
     def neg(x: float) -> float:
