@@ -88,6 +88,23 @@ def test_a_gauss_markov_process_faster_than_the_band_is_white_noise(seed):
     assert slow.terms()["arw_deg_per_sqrt_h"] == pytest.approx(60.0 * w, rel=0.3), slow.describe()
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_a_large_slow_part_is_fitted_without_overflow(seed):
+    """A residual with a slow part 25 times its white noise (a cubic of 0.1 deg/s over the hour, as a
+    thermal lag's residual without its term): the optimiser's wild first steps overflowed the model
+    density before it was capped (pyproject.toml turns that RuntimeWarning into an error everywhere;
+    here it is asked for explicitly). The slow part is still taken."""
+    import warnings
+
+    t = np.arange(3600.0)
+    r = np.random.default_rng(seed).standard_normal(t.size) * 0.004 + 0.1 * ((t - 1800.0) / 1800.0) ** 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        for allow in (("flicker", "gm"), ("flicker", "rrw", "gm")):
+            m = fit_noise_model(r, 1.0, allow=allow)
+            assert not m.is_white and m.terms()["arw_deg_per_sqrt_h"] == pytest.approx(0.004 * 60.0, rel=0.3), m.describe()
+
+
 def test_a_step_is_not_stationary_noise_but_a_walk_is():
     rng = np.random.default_rng(9)
     n = 3600

@@ -248,19 +248,40 @@ def _fit(G: np.ndarray, b: _Bands, theta0: np.ndarray, offset: np.ndarray | floa
     """Maximise the Whittle likelihood over θ ≥ 0 (log-parameters), S = G·θ + ``offset``."""
     from scipy.optimize import minimize
 
+    hi = _log_cap(G, b)
+    s_min = SPEC_FLOOR * float(np.mean(b.mean_i)) + 1e-300
     floor = np.maximum(theta0 * 1e-8, 1e-300)
 
     def f(x: np.ndarray) -> tuple[float, np.ndarray]:
-        th = np.exp(np.minimum(x, 700.0))  # a wild line-search step must not overflow
-        s = np.maximum(G @ th + offset, 1e-300)
+        capped = x > hi
+        th = np.exp(np.where(capped, hi, x))
+        s = np.maximum(G @ th + offset, s_min)
         val = -np.sum(b.count * (np.log(s) + b.mean_i / s))
-        grad_s = -b.count * (1.0 / s - b.mean_i / (s * s))
-        return -val, -(G.T @ grad_s) * th
+        grad_s = -b.count * (s - b.mean_i) / s / s
+        return -val, np.where(capped, 0.0, -(G.T @ grad_s) * th)
 
-    x0 = np.log(np.maximum(theta0, floor))
+    x0 = np.minimum(np.log(np.maximum(theta0, floor)), hi)
     res = minimize(f, x0, jac=True, method="L-BFGS-B", options={"maxiter": 300})
-    th = np.exp(res.x)
+    th = np.exp(np.minimum(res.x, hi))
     return th, _whittle(th, G, b, offset)
+
+
+CAP_ABOVE = 1e6
+"""A component's parameter is capped where its density reaches this many times the band-averaged
+periodogram at the band where it comes closest: no maximum of the Whittle likelihood lies there
+(each band beyond the data by a factor F costs its count·ln F). The cap (and :data:`SPEC_FLOOR`)
+keeps a wild line-search step finite: uncapped, one step reached e^(2.8e5) on a residual with a large
+slow part, and the density, then its square, overflowed. (Bounds given to the optimiser instead
+would let a projected step park the white part at its lower bound, where the gradient in log θ
+vanishes.)"""
+SPEC_FLOOR = 1e-12
+"""The model density is at least this share of the mean band periodogram (never a maximum either)."""
+
+
+def _log_cap(G: np.ndarray, b: _Bands) -> np.ndarray:
+    """The log-parameter of each column of ``G`` at :data:`CAP_ABOVE`."""
+    data = np.maximum(b.mean_i, SPEC_FLOOR * float(np.mean(b.mean_i)) + 1e-300)
+    return np.log(CAP_ABOVE * np.min(data[:, None] / np.maximum(G, 1e-300), axis=0))
 
 
 def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[str, ...] = ("flicker", "rrw", "gm"),
