@@ -301,10 +301,6 @@ KNOWN_MISSES = {
                                   "(flicker, then rate_random_walk K 23 deg/h/√h) and named rate_random_walk:z",
     ("unnamed", "earth_rate", 5): "the hidden Earth rate's slow part on x is named rate_random_walk (K 41 deg/h/√h), "
                                   "as earth_rate-1",
-    ("unnamed", "rate_random_walk", 5): "a hidden random walk on y (K 3.2e-4 deg/s/√s) is taken in part by a periodic "
-                                        "term at 0.0011 Hz (4 cycles an hour, gain 1.10, ΔIC -13 at φ 20), while the time "
-                                        "probe still finds ΔIC -200 (gain 1.107): less than the term explains, so the "
-                                        "larger-structure check does not run (it would at LARGER_SHARE 0.25)",
     ("unnamed", "thermal_lag", 3): "a hidden thermal lag of τ 734 s on z (cubic -0.0064 deg/s at 25 °C) is slow "
                                    "structure in time (time probe ΔIC -8325, pressure -212, heating/cooling -12) that "
                                    "passes the stationarity check: named rate_random_walk (K 130 deg/h/√h) + "
