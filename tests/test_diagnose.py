@@ -566,11 +566,7 @@ def test_more_clean_sessions(seed):
     check_exact([], _seed("clean", 1, seed))
 
 
-PAIR_10HZ_MISSES = {
-    ("rate_random_walk", "earth_rate"): "fails on main 37d28f8 too: the Earth rate is not named, the random walk "
-                                        "injected on y is left unexplained there (pressure ΔIC -88 best) and the noise "
-                                        "model names gauss_markov:x (τc 11 s) and rate_random_walk:z",
-}
+PAIR_10HZ_MISSES: dict[tuple[str, str], str] = {}
 """Slow 10-Hz pairs that still fail, each with what happens (strict xfail)."""
 
 
