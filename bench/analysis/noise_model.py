@@ -64,6 +64,9 @@ GM_PER_DECADE = 3
 GM_RESOLVED = 1.0 / 3.0
 """A Gauss-Markov correlation time is at most this share of the record: the spectrum must show its
 roll-off (a longer one is a random walk within the record, which the ``rrw`` component is)."""
+GM_GRID_FROM = 0.5
+"""The correlation-time grid's anchor (samples): its points are those of a grid from half a sample,
+so the points in the resolved range, and the fits at them, do not move with :data:`GM_MIN_SAMPLES`."""
 GM_MIN_SAMPLES = 2.0 / math.pi
 """... and at least this many samples: its corner f_c = 1/(2π τ_c) lies at or below half the Nyquist
 frequency 1/(2Δ), so the band shows the plateau and an octave of the 1/f² fall. A shorter process is,
@@ -305,7 +308,10 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
     lo_tau, hi_tau = GM_MIN_SAMPLES * dt_s, GM_RESOLVED * duration
     if max_tau_s is not None:
         hi_tau = max(min(hi_tau, max_tau_s), 1.01 * lo_tau)
-    taus = np.geomspace(lo_tau, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / lo_tau)) + 1, 2))
+    # the grid anchored at half a sample (GM_GRID_FROM), its points below the resolved range dropped
+    start = GM_GRID_FROM * dt_s
+    taus = np.geomspace(start, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / start)) + 1, 2))
+    taus = taus[taus >= lo_tau]
     while len(comps) - 1 < MAX_COMPONENTS:
         best = None
         tried = []

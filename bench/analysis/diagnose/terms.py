@@ -622,11 +622,19 @@ class Periodic(Candidate):
     nonlinear = ("frequency_hz", "phase_rad")
     refine = (("frequency_hz", False),)
     SHORTLIST = 4
+    LINE_TEST = True
+    """Only peaks that are lines against the residual's continuum (a name needs a line)."""
 
     def grid(self, p, axis, ctx):
+        lo, hi = 2.0 / p.duration_s, 0.45 * p.fs
+
         def lines(r: np.ndarray) -> list[dict[str, Any]]:
-            return [{"frequency_hz": f} for f in line_peaks(r, p.fs, 2.0 / p.duration_s, 0.45 * p.fs, self.SHORTLIST)]
-        return _per_residual(p, "periodogram", axis, ctx.resid[axis], lines)
+            if self.LINE_TEST:
+                return [{"frequency_hz": f} for f in line_peaks(r, p.fs, lo, hi, self.SHORTLIST)]
+            f, power = periodogram(r, p.fs)
+            return [{"frequency_hz": float(f[i])} for i in _peaks(np.where((f >= lo) & (f <= hi), power, 0.0),
+                                                                   self.SHORTLIST, 3)]
+        return _per_residual(p, f"periodogram:{self.LINE_TEST}", axis, ctx.resid[axis], lines)
 
     def refine_interval(self, p, name, value):
         half = 0.5 / p.duration_s
@@ -891,6 +899,7 @@ class SpectrumProbe(Periodic):
     name = "probe:spectrum"
     where = "a spectral line"
     family = None
+    LINE_TEST = False  # a detector of what is left: the highest peaks, lines or crests of a continuum
 
 
 class SpecificForceProbe(Probe):
