@@ -80,6 +80,11 @@ def test_phone_at_rest_is_noise_with_its_read_outs(real_log):
     for a, b_ref in S5_B_ALLANTOOLS.items():
         b = result.noise[a]["ieee952"]["bias_instability_deg_per_h"]
         assert b is not None and 0.75 * b_ref <= b <= 1.3 * b_ref, (a, b, b_ref)
+        # the model's white part is the Allan −½ line's ARW (z's 0.12-Hz hump lies past the 5-s bins'
+        # Nyquist frequency: white noise there, not a Gauss-Markov term that takes the white part)
+        arw_model = result.noise[a]["model"]["arw_deg_per_sqrt_h"]
+        arw_allan = result.noise[a]["ieee952"]["arw_deg_per_sqrt_h"]
+        assert 0.85 * arw_allan <= arw_model <= 1.15 * arw_allan, (a, arw_model, arw_allan)
     doc = result.json
     assert set(doc["noise"]) == {"x", "y", "z"} and "model" in doc["noise"]["x"]
 

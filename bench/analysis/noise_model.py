@@ -64,6 +64,16 @@ GM_PER_DECADE = 3
 GM_RESOLVED = 1.0 / 3.0
 """A Gauss-Markov correlation time is at most this share of the record: the spectrum must show its
 roll-off (a longer one is a random walk within the record, which the ``rrw`` component is)."""
+GM_GRID_FROM = 0.5
+"""The correlation-time grid's anchor (samples): its points are those of a grid from half a sample,
+so the points in the resolved range, and the fits at them, do not move with :data:`GM_MIN_SAMPLES`."""
+GM_MIN_SAMPLES = 2.0 / math.pi
+"""... and at least this many samples: its corner f_c = 1/(2π τ_c) lies at or below half the Nyquist
+frequency 1/(2Δ), so the band shows the plateau and an octave of the 1/f² fall. A shorter process is,
+at the sampled rate, a tilt of a nearly flat spectrum (its sampled AR(1) density falls by less than
+(1+φ)²/(1−φ)² = 2.3 from 0 to Nyquist), which an anti-alias filter, bin averaging or an aliased hump
+makes as well: it is part of the white rate noise (its low-frequency level is what the Allan −½ line
+reads), not a resolved Gauss-Markov term. A fitted τ_c at either end of the grid is not resolved."""
 WHITE_FLOOR = 1e-6
 """The white variance is at least this share of the series' variance (the filter needs R > 0)."""
 
@@ -241,19 +251,40 @@ def _fit(G: np.ndarray, b: _Bands, theta0: np.ndarray, offset: np.ndarray | floa
     """Maximise the Whittle likelihood over θ ≥ 0 (log-parameters), S = G·θ + ``offset``."""
     from scipy.optimize import minimize
 
+    hi = _log_cap(G, b)
+    s_min = SPEC_FLOOR * float(np.mean(b.mean_i)) + 1e-300
     floor = np.maximum(theta0 * 1e-8, 1e-300)
 
     def f(x: np.ndarray) -> tuple[float, np.ndarray]:
-        th = np.exp(np.minimum(x, 700.0))  # a wild line-search step must not overflow
-        s = np.maximum(G @ th + offset, 1e-300)
+        capped = x > hi
+        th = np.exp(np.where(capped, hi, x))
+        s = np.maximum(G @ th + offset, s_min)
         val = -np.sum(b.count * (np.log(s) + b.mean_i / s))
-        grad_s = -b.count * (1.0 / s - b.mean_i / (s * s))
-        return -val, -(G.T @ grad_s) * th
+        grad_s = -b.count * (s - b.mean_i) / s / s
+        return -val, np.where(capped, 0.0, -(G.T @ grad_s) * th)
 
-    x0 = np.log(np.maximum(theta0, floor))
+    x0 = np.minimum(np.log(np.maximum(theta0, floor)), hi)
     res = minimize(f, x0, jac=True, method="L-BFGS-B", options={"maxiter": 300})
-    th = np.exp(res.x)
+    th = np.exp(np.minimum(res.x, hi))
     return th, _whittle(th, G, b, offset)
+
+
+CAP_ABOVE = 1e6
+"""A component's parameter is capped where its density reaches this many times the band-averaged
+periodogram at the band where it comes closest: no maximum of the Whittle likelihood lies there
+(each band beyond the data by a factor F costs its count·ln F). The cap (and :data:`SPEC_FLOOR`)
+keeps a wild line-search step finite: uncapped, one step reached e^(2.8e5) on a residual with a large
+slow part, and the density, then its square, overflowed. (Bounds given to the optimiser instead
+would let a projected step park the white part at its lower bound, where the gradient in log θ
+vanishes.)"""
+SPEC_FLOOR = 1e-12
+"""The model density is at least this share of the mean band periodogram (never a maximum either)."""
+
+
+def _log_cap(G: np.ndarray, b: _Bands) -> np.ndarray:
+    """The log-parameter of each column of ``G`` at :data:`CAP_ABOVE`."""
+    data = np.maximum(b.mean_i, SPEC_FLOOR * float(np.mean(b.mean_i)) + 1e-300)
+    return np.log(CAP_ABOVE * np.min(data[:, None] / np.maximum(G, 1e-300), axis=0))
 
 
 def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[str, ...] = ("flicker", "rrw", "gm"),
@@ -274,10 +305,13 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
     G = _basis("white", b.omega, dt_s, duration)[:, None]
     theta, ll = _fit(G, b, np.array([var]))
     model.loglik = ll
-    lo_tau, hi_tau = 0.5 * dt_s, GM_RESOLVED * duration
+    lo_tau, hi_tau = GM_MIN_SAMPLES * dt_s, GM_RESOLVED * duration
     if max_tau_s is not None:
         hi_tau = max(min(hi_tau, max_tau_s), 1.01 * lo_tau)
-    taus = np.geomspace(lo_tau, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / lo_tau)) + 1, 2))
+    # the grid anchored at half a sample (GM_GRID_FROM), its points below the resolved range dropped
+    start = GM_GRID_FROM * dt_s
+    taus = np.geomspace(start, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / start)) + 1, 2))
+    taus = taus[taus >= lo_tau]
     while len(comps) - 1 < MAX_COMPONENTS:
         best = None
         tried = []
@@ -297,9 +331,13 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
                 share = float(np.max(th[-1] * col / np.maximum(G2 @ th, 1e-300)))
                 tried.append((d_bic, k_, tau, th, ll2, col, share))
         for d_bic, k_, tau, th, ll2, col, share in sorted(tried, key=lambda x: x[0]):
-            if k_ == "gm" and tau >= 0.99 * hi_tau:
-                continue  # a correlation time at the top of the grid is not resolved
+            if k_ == "gm" and not _resolved(tau, lo_tau, hi_tau):
+                continue  # a correlation time at an end of the grid is not resolved
             if d_bic < -ic_min and share >= MATERIAL_SHARE:
+                if k_ == "gm":
+                    tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, lo_tau, hi_tau)
+                    if not _resolved(tau, lo_tau, hi_tau):
+                        continue  # the likelihood runs to an end of the grid once refined
                 best = (d_bic, k_, tau, th, ll2, col, share)
                 break
         if best is None:
@@ -308,8 +346,6 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
                 model.steps.append({"component": k_, "tau_s": tau, "d_bic": d_bic, "accepted": False})
             break
         d_bic, k_, tau, th, ll2, col, share = best
-        if k_ == "gm":
-            tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, hi_tau)
         comps.append((k_, tau))
         G = np.column_stack([G, col])
         theta, ll = th, ll2
@@ -405,14 +441,20 @@ def _stationarity_lr(r: np.ndarray, model: NoiseModel, parts: int) -> tuple[floa
     return lr, parts * k_slow, m
 
 
+def _resolved(tau: float, lo_tau: float, hi_tau: float) -> bool:
+    """Whether a Gauss-Markov correlation time lies inside the grid, not at one of its ends
+    (:data:`GM_MIN_SAMPLES`, :data:`GM_RESOLVED`): at an end the likelihood would go on past it."""
+    return 1.02 * lo_tau < tau < 0.99 * hi_tau
+
+
 def _refine_gm(G: np.ndarray, b: _Bands, theta: np.ndarray, tau: float, dt: float, duration: float,
-               th: np.ndarray, ll: float, hi_tau: float) -> tuple[float, np.ndarray, float, np.ndarray]:
+               th: np.ndarray, ll: float, lo_tau: float, hi_tau: float) -> tuple[float, np.ndarray, float, np.ndarray]:
     """The Gauss-Markov correlation time refined between the grid neighbours (golden section on
-    log τ of the profiled likelihood)."""
+    log τ of the profiled likelihood, within [``lo_tau``, ``hi_tau``])."""
     from scipy.optimize import minimize_scalar
 
     step = math.log(10.0) / GM_PER_DECADE
-    lo = max(math.log(tau) - step, math.log(0.5 * dt))
+    lo = max(math.log(tau) - step, math.log(lo_tau))
     hi = max(min(math.log(tau) + step, math.log(hi_tau)), lo)
 
     def neg(x: float) -> float:

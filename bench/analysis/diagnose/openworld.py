@@ -43,6 +43,10 @@ more than this share of the variance the term itself explains."""
 LARGER_SHARE = 1.0
 """A probe of another family that still explains more than this multiple of a named term's variance
 on the term's axis makes the term a candidate part of that larger structure (:func:`_part_of_larger`)."""
+NOT_MATERIAL = "not material in the final model"
+"""The reason a term found by the search is dropped when it no longer carries its weight in the final
+company (judged against a residual that may still hold the sensor's slow noise: the selection
+against the noise model searches it again, ``bench.analysis.diagnose._diagnose``)."""
 COINCIDE_SIGMA = 5.0
 """A bias step coincides with a covariate when the covariate's change across the step (means of the
 blocks either side) exceeds this many of its typical block-to-block changes..."""
@@ -476,7 +480,7 @@ def finish(p: Prepared, base_terms: list[Term], found: list[Term], hidden: froze
             reduced = build_state(p, base_terms + _without(found, term))
             d_ic, gain, phi, gain_band, band_t = compare(p, reduced, full, term.built.axes, term_df(term))
             if not material(d_ic, gain, gain_band, band_t):
-                found = _drop(dropped, found, term, f"not material in the final model (ΔIC {d_ic:+.1f}, gain {100 * gain:.2g} %)")
+                found = _drop(dropped, found, term, f"{NOT_MATERIAL} (ΔIC {d_ic:+.1f}, gain {100 * gain:.2g} %)")
                 changed = True
                 break
 

@@ -569,22 +569,72 @@ class BiasStep(Candidate):
         return f"bias steps by {params['step_dps']:+.2g} deg/s at t = {params['t_step_s']:.0f} s"
 
 
+LINE_P = 1e-3
+"""False-alarm probability of the line test over the whole searched band (:func:`line_peaks`)."""
+LINE_WINDOW = 4.0
+"""The continuum under a peak at f is fitted over f/LINE_WINDOW … f·LINE_WINDOW."""
+EULER_GAMMA = 0.5772156649015329
+"""−E[ln X] for X ~ Exp(1): a log-periodogram fit is that far below the log of the spectrum."""
+
+
+def line_peaks(r: np.ndarray, fs: float, f_min: float, f_max: float, count: int) -> list[float]:
+    """Frequencies (Hz) of the ``count`` highest periodogram peaks of ``r`` between ``f_min`` and
+    ``f_max`` that are spectral lines against the residual's own continuum, not a crest of a coloured
+    (red) one: a line test against a coloured background. The continuum at a peak f₀ is the power
+    law fitted to the log of the Fourier ordinates between f₀/4 and 4·f₀ (the peak's own ±1.5
+    ordinates left out; + Euler's γ, the log of an Exp(1) variable being γ below the log of its mean).
+    Without a line the ordinate over its continuum is Exp(1) (Gaussian noise, any smooth spectrum),
+    so the highest of the M searched ordinates, counted twice for the zero-padded search, exceeds
+    ln(2M/p) with probability p = :data:`LINE_P`. A random walk's few cycles in the record are part of
+    its 1/f² continuum and fail; a sinusoid of amplitude A over n samples of white σ stands
+    A²n/(4σ²) above it."""
+    f, power = periodogram(r, fs)
+    band = (f >= f_min) & (f <= f_max)
+    n = r.shape[0]
+    spec = np.fft.rfft(r - r.mean())
+    fourier = spec.real ** 2 + spec.imag ** 2
+    j = np.arange(1, fourier.size)
+    lj, li = np.log(j), np.log(np.maximum(fourier[1:], 1e-300))
+    m = int(np.count_nonzero((j * fs / n >= f_min) & (j * fs / n <= f_max)))
+    need = math.log(2.0 * max(m, 1) / LINE_P)
+    out = []
+    score = np.where(band, power, 0.0)
+    for i in _peaks(score, 4 * count, 3):
+        j0 = f[i] * n / fs
+        sel = (j >= j0 / LINE_WINDOW) & (j <= j0 * LINE_WINDOW) & (np.abs(j - j0) > 1.5)
+        if np.count_nonzero(sel) < 4:
+            continue
+        slope, icpt = np.polyfit(lj[sel], li[sel], 1)
+        if power[i] >= need * math.exp(icpt + slope * math.log(j0) + EULER_GAMMA):
+            out.append(float(f[i]))
+        if len(out) == count:
+            break
+    return out
+
+
 class Periodic(Candidate):
     """Periodic interference A·sin(2πft + φ): f from the highest peaks of the residual's periodogram
-    (at least two cycles in the data, below 0.45·f_s), refined within half a periodogram bin."""
+    (at least two cycles in the data, below 0.45·f_s) that are lines against its continuum
+    (:func:`line_peaks`), refined within half a periodogram bin."""
 
     name = "periodic"
     family = "angle_rate"
     nonlinear = ("frequency_hz", "phase_rad")
     refine = (("frequency_hz", False),)
     SHORTLIST = 4
+    LINE_TEST = True
+    """Only peaks that are lines against the residual's continuum (a name needs a line)."""
 
     def grid(self, p, axis, ctx):
+        lo, hi = 2.0 / p.duration_s, 0.45 * p.fs
+
         def lines(r: np.ndarray) -> list[dict[str, Any]]:
+            if self.LINE_TEST:
+                return [{"frequency_hz": f} for f in line_peaks(r, p.fs, lo, hi, self.SHORTLIST)]
             f, power = periodogram(r, p.fs)
-            power = np.where((f >= 2.0 / p.duration_s) & (f <= 0.45 * p.fs), power, 0.0)
-            return [{"frequency_hz": float(f[i])} for i in _peaks(power, self.SHORTLIST, 3)]
-        return _per_residual(p, "periodogram", axis, ctx.resid[axis], lines)
+            return [{"frequency_hz": float(f[i])} for i in _peaks(np.where((f >= lo) & (f <= hi), power, 0.0),
+                                                                   self.SHORTLIST, 3)]
+        return _per_residual(p, f"periodogram:{self.LINE_TEST}", axis, ctx.resid[axis], lines)
 
     def refine_interval(self, p, name, value):
         half = 0.5 / p.duration_s
@@ -849,6 +899,7 @@ class SpectrumProbe(Periodic):
     name = "probe:spectrum"
     where = "a spectral line"
     family = None
+    LINE_TEST = False  # a detector of what is left: the highest peaks, lines or crests of a continuum
 
 
 class SpecificForceProbe(Probe):
