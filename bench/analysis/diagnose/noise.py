@@ -110,10 +110,12 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     it is asked about."""
     from bench.analysis.diagnose.openworld import probe_term
 
-    def stats(q: Prepared) -> tuple[float, float]:
+    def stats(q: Prepared, need: list[bool]) -> list[float]:
+        """(time probe ΔIC, best named shape ΔIC) on ``q``'s axis ``a``; NaN where not ``need``ed."""
         state = build_state(q, terms)
-        hit = probe_term(q, state, "probe:time", a)
-        return (float(hit[1].d_ic) if hit is not None else 0.0), shape_d_ic(q, state, a, hidden)
+        hit = probe_term(q, state, "probe:time", a) if need[0] else None
+        return [(float(hit[1].d_ic) if hit is not None else 0.0) if need[0] else math.nan,
+                shape_d_ic(q, state, a, hidden) if need[1] else math.nan]
 
     out: dict[str, Any] = {}
     saved_w, saved_g = p.whiten, p.gyro
@@ -126,21 +128,21 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
             lr, p_uneven = stationarity_test(resid[a], m)
             if p_uneven >= UNEVEN_P:
                 continue
-            observed = stats(p)
+            beyond = [True, True]
+            observed = stats(p, beyond)
             rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
             fitted = saved_g[a] - resid[a]
-            draws: list[tuple[float, float]] = []
-            beyond = [True, True]
+            draws: list[list[float]] = []
             for _ in range(GOF_DRAWS):
                 p.gyro = {**saved_g, a: fitted + realisation(m, resid[a].size, rng)}
-                draws.append(stats(p))
+                draws.append(stats(p, beyond))  # only the statistics no draw has matched yet
                 beyond = [b and draws[-1][i] > observed[i] for i, b in enumerate(beyond)]
                 if not any(beyond):
                     break  # each statistic matched by a draw: within the model
             p.gyro = saved_g
             if any(beyond):
                 i = beyond.index(True)
-                out[a] = {"statistic": ("time probe", "best named slow shape")[i], "d_ic_time": observed[i],
+                out[a] = {"statistic": ("time probe", "best named slow shape")[i], "d_ic": observed[i],
                           "d_ic_draws_min": min(d[i] for d in draws), "model": m.describe(),
                           "uneven_chi2": lr, "uneven_p": p_uneven}
     finally:
@@ -224,8 +226,8 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
         if structure and a in structure:
             ev = structure[a]
             m = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
-            m.steps.append({"component": "slow part", "d_bic": ev["d_ic_time"], "accepted": False,
-                            "reason": f"structure in time ({ev['statistic']} ΔIC {ev['d_ic_time']:+.0f}) beyond what "
+            m.steps.append({"component": "slow part", "d_bic": ev["d_ic"], "accepted": False,
+                            "reason": f"structure in time ({ev['statistic']} ΔIC {ev['d_ic']:+.0f}) beyond what "
                                       f"{ev['model']} makes ({GOF_DRAWS} realisations, none below "
                                       f"{ev['d_ic_draws_min']:+.0f}) and uneven in time (χ² {ev['uneven_chi2']:.1f}, "
                                       f"p {ev['uneven_p']:.2g}): left to the probes"})
