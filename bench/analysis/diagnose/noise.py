@@ -173,9 +173,9 @@ def shape_d_ic(p: Prepared, state: Any, a: str, hidden: frozenset[str] = frozens
 def _full_model(p: Prepared, a: str, r: np.ndarray) -> NoiseModel:
     """Axis ``a``'s noise model with every component allowed, fitted once per residual array (asked
     for by :func:`beyond_noise` and then by :func:`fit_models` on the same residual)."""
-    from bench.analysis.diagnose.terms import _per_residual
+    from bench.analysis.diagnose.terms import per_residual
 
-    return _per_residual(p, "noise_model", a, r, lambda x: fit_noise_model(x, 1.0 / p.fs, p.bin_rows))
+    return per_residual(p, "noise_model", a, r, lambda x: fit_noise_model(x, 1.0 / p.fs, p.bin_rows))
 
 
 def has_slow_part(m: NoiseModel) -> bool:
@@ -186,16 +186,18 @@ def has_slow_part(m: NoiseModel) -> bool:
 
 
 def realisation(m: NoiseModel, n: int, rng: np.random.Generator) -> np.ndarray:
-    """One series of ``n`` samples of noise model ``m`` (deg/s): white plus each correlated state
-    (AR(1) started in its stationary distribution; the random walk from 0)."""
-    from scipy.signal import lfilter
+    """One series of ``n`` samples of noise model ``m`` (deg/s): white plus each correlated state,
+    a Gauss-Markov process from its stationary start (the generator's own,
+    :func:`bench.model.effects.gauss_markov_noise`), the random walk from 0."""
+    from bench.model.effects import gauss_markov_noise
 
     x = rng.normal(0.0, math.sqrt(m.white_var), n)
+    t = np.arange(n) * m.dt_s
     for f, q in zip(*m.states()):
-        e = rng.normal(0.0, math.sqrt(q), n)
         if f < 1.0:
-            e[0] = rng.normal(0.0, math.sqrt(q / (1.0 - f * f)))
-        x += lfilter([1.0], [1.0, -f], e)
+            x += gauss_markov_noise(t, math.sqrt(q / (1.0 - f * f)), -m.dt_s / math.log(f), rng)
+        else:
+            x += np.cumsum(rng.normal(0.0, math.sqrt(q), n))
     return x
 
 

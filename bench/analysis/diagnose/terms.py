@@ -287,7 +287,7 @@ class GearEccentricity(Candidate):
         return out
 
     def grid(self, p, axis, ctx):
-        spec = _per_residual(p, "gear_spectrum", axis, ctx.resid[axis], lambda r: self.spectrum(p, axis, r))
+        spec = per_residual(p, "gear_spectrum", axis, ctx.resid[axis], lambda r: self.spectrum(p, axis, r))
         top = np.argsort(spec)[::-1][: self.SHORTLIST] + 1
         return [{"harmonic": int(N)} for N in top]
 
@@ -556,7 +556,7 @@ class BiasStep(Candidate):
             stat[: edge] = 0.0
             stat[-edge:] = 0.0
             return [{"t_step_s": float(p.t[i + 1])} for i in _peaks(stat, self.SHORTLIST, 2 * max(p.blocks.length, 2))]
-        return _per_residual(p, "step_scan", axis, ctx.resid[axis], scan)
+        return per_residual(p, "step_scan", axis, ctx.resid[axis], scan)
 
     def build(self, p, axis, nl, ctx):
         col = _cached(p, ("step", float(nl["t_step_s"])), lambda: (p.t >= nl["t_step_s"]).astype(float)[:, None])
@@ -634,7 +634,7 @@ class Periodic(Candidate):
             f, power = periodogram(r, p.fs)
             return [{"frequency_hz": float(f[i])} for i in _peaks(np.where((f >= lo) & (f <= hi), power, 0.0),
                                                                    self.SHORTLIST, 3)]
-        return _per_residual(p, f"periodogram:{self.LINE_TEST}", axis, ctx.resid[axis], lines)
+        return per_residual(p, f"periodogram:{self.LINE_TEST}", axis, ctx.resid[axis], lines)
 
     def refine_interval(self, p, name, value):
         half = 0.5 / p.duration_s
@@ -670,7 +670,7 @@ def _peaks(score: np.ndarray, count: int, halfwidth: int) -> list[int]:
     return out
 
 
-def _per_residual(p: Prepared, key: str, axis: str, r: np.ndarray, fn: Callable[[np.ndarray], Any]) -> Any:
+def per_residual(p: Prepared, key: str, axis: str, r: np.ndarray, fn: Callable[[np.ndarray], Any]) -> Any:
     """``fn(r)`` computed once per residual array of ``axis`` (the grid of a round is asked for again
     while the residual is the same object)."""
     hit = p.cache.get((key, axis))
