@@ -33,7 +33,6 @@ from rich.text import Text
 
 from bench.errors import EXIT_OK, InputError
 from bench.quantity_format import fmt_hms, fmt_number, fmt_quantity, fmt_reading, is_status_column, unit_text
-from bench.run_mode import banner, mode_word
 from bench.record import layout
 from bench.record.reader import (
     STALE_AFTER_S,
@@ -55,6 +54,8 @@ from bench.record.reader import (
     read_heartbeat,
     step_outcome,
 )
+from bench.run_mode import banner, mode_word
+from bench.terminal_text import printable
 
 TREND_WINDOW_S = 600.0
 """Run time (s) covered by the trend of each signal: the last 10 minutes."""
@@ -610,30 +611,30 @@ def _layout(state: WatchState, width: int, *, compact: bool, events: int, traffi
         parts.append(Text(f" {loud} ", style="bold black on yellow"))
     head = Text()
     head.append(f" {state.status.upper()} ", style=_STATUS_STYLE.get(state.status, "bold reverse"))
-    head.append(f"  {state.procedure}", style="bold")
+    head.append(f"  {printable(state.procedure)}", style="bold")
     head.append(f"   run time {fmt_hms(state.run_time_s)}")
     if not compact:
         head.append(f" ({state.run_time_s:.1f} s)")
     if state.mode:
         head.append(f"   mode {mode_word(state.mode)}", style="dim")
-    detail = Text(state.status_detail, style={STATUS_STALE: "red", layout.STATUS_WAITING: "bold magenta"}.get(state.status, "dim"))
+    detail = Text(printable(state.status_detail), style={STATUS_STALE: "red", layout.STATUS_WAITING: "bold magenta"}.get(state.status, "dim"))
     if state.abort_reason:
-        detail.append(f"   abort reason: {state.abort_reason}", style="red")
+        detail.append(f"   abort reason: {printable(state.abort_reason)}", style="red")
     step = _step_line(state)
     if tight:
         for line in (head, detail, step):
             line.no_wrap, line.overflow = True, "ellipsis"
     parts += [head, detail, step]
     for w in state.warnings:
-        parts.append(Text(f"warning: {w}", style="yellow"))
+        parts.append(Text(f"warning: {printable(w)}", style="yellow"))
     if state.read_error:
-        parts.append(Text(f"refresh failed, showing the last good read: {state.read_error}", style="yellow"))
+        parts.append(Text(f"refresh failed, showing the last good read: {printable(state.read_error)}", style="yellow"))
     parts.extend(_readings(state, width - PANEL_CHROME, compact=compact, header=not tight))
     if events > 0 or not compact:
         parts.append(_events_table(state, events, one_line=compact, traffic_below=traffic and bool(state.traffic)))
     if traffic and state.traffic:
-        parts.append(Text("instrument traffic (kept for replay): " + "; ".join(t.describe() for t in state.traffic), style="dim"))
-    title = f"bench watch [dim]{state.path.name}[/]"
+        parts.append(Text("instrument traffic (kept for replay): " + "; ".join(printable(t.describe()) for t in state.traffic), style="dim"))
+    title = Text.assemble("bench watch ", (printable(state.path.name), "dim"))
     return Panel(Group(*parts), title=title, title_align="left", box=box.ROUNDED, padding=(0, 1), width=width)
 
 
@@ -649,14 +650,14 @@ def _step_line(state: WatchState) -> Text:
     cur = state.current_step
     if cur is not None:
         t.append(f"step {cur.index + 1}{total}  ", style="bold")
-        t.append(cur.name or "?", style="bold cyan")
-        t.append(f" ({cur.type})" if cur.type else "")
+        t.append(printable(cur.name or "?"), style="bold cyan")
+        t.append(f" ({printable(cur.type)})" if cur.type else "")
         if cur.t_start_s is not None:
             t.append(f"  started at {fmt_hms(cur.t_start_s)}, running {fmt_hms(max(state.run_time_s - cur.t_start_s, 0.0))}")
     elif state.steps:
         last = state.steps[-1]
         t.append("last step  " if state.status not in _LIVE else "between steps; last  ", style="bold")
-        t.append(f"{last.index + 1}{total} {last.name} ")
+        t.append(f"{last.index + 1}{total} {printable(last.name)} ")
         t.append(last.outcome, style=_OUTCOME_STYLE.get(last.outcome, ""))
         if last.detail:
             t.append(f": {last.detail}")
@@ -780,7 +781,7 @@ def _readings(state: WatchState, width: int, *, compact: bool = False, header: b
     trend_head = next((h for h in (f"trend, last {window}", f"last {window}", "trend") if len(h) <= trend), "")
     out: list[RenderableType] = []
     for i, (s, rs) in enumerate(by_stream):
-        head = Text(("\n" if i and not compact else "") + s.key, style="bold")
+        head = Text(("\n" if i and not compact else "") + printable(s.key), style="bold")
         head.append(f"  {s.rows:,} rows", style="dim")
         if s.rate_hz is not None:
             head.append(f"  {fmt_quantity(s.rate_hz, 'Hz', 4)}", style="dim")
@@ -805,9 +806,9 @@ def _readings(state: WatchState, width: int, *, compact: bool = False, header: b
             t.add_column("min", justify="right", no_wrap=True, width=w["lo"])
             t.add_column("max", justify="right", no_wrap=True, width=w["hi"])
         for r in rs:
-            cells: list[RenderableType] = [Text(r.label), Text(r.value), Text(r.units, style="dim")]
+            cells: list[RenderableType] = [Text(printable(r.label)), Text(r.value), Text(printable(r.units), style="dim")]
             if trend > 0:
-                cells.append(Text(r.note, style="dim") if r.note else Text(sparkline(resample(r.trend, trend)), style="cyan"))
+                cells.append(Text(printable(r.note), style="dim") if r.note else Text(sparkline(resample(r.trend, trend)), style="cyan"))
             if extremes:
                 cells += [Text(r.lo), Text(r.hi)]
             t.add_row(*cells)
@@ -834,7 +835,7 @@ def _events_table(state: WatchState, shown: int, one_line: bool = False, traffic
     t.add_column("message", overflow="ellipsis" if one_line else "fold", no_wrap=one_line, ratio=1)
     for e in events:
         style = "red" if e.kind in ("error", "fault", "abort") else ("bold" if e.kind in (layout.EVENT_STEP_START, layout.EVENT_STEP_END) else "")
-        t.add_row(fmt_hms(e.t_s), Text(e.kind, style=style), Text(e.source), str(e.step + 1) if e.step >= 0 else "",
+        t.add_row(fmt_hms(e.t_s), Text(printable(e.kind), style=style), Text(printable(e.source)), str(e.step + 1) if e.step >= 0 else "",
                   Text(event_text(e.kind, e.source, e.message)))
     return t
 
@@ -912,6 +913,6 @@ def _first_read(path: Path, console: Console, wait_s: float, read) -> WatchState
         else:
             reason = "it to appear"
         if not told:
-            console.print(f"waiting up to {wait_s:g} s for {path}: waiting for {reason} …", style="dim", markup=False)
+            console.print(f"waiting up to {wait_s:g} s for {printable(path)}: waiting for {printable(reason)} …", style="dim", markup=False)
             told = True
         time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))

@@ -2,7 +2,7 @@
 made by someone else (or by a damaged disk), each case of the adversarial pass that failed before.
 
 Cases: S1 (secrets kept out of run files), S7 (links out of the runs directory), S8 (terminal
-escapes in run-file texts), S9 (a catalogue URL with ``@`` in its password), D1 (``-o`` onto a
+escapes in run-file texts, also in `bench watch`), S9 (a catalogue URL with ``@`` in its password), D1 (``-o`` onto a
 device or FIFO), D2 (truncated files under ``--verify``), D3 (a newer catalogue left untouched), D4
 (flipped attribute bits), D5 (kill -9 while a run file is set up), H1 (FIFO inputs), T1 (a file name
 that is not UTF-8), T4-T10 (catalogue and CLI edge cases). docs/reliability.md lists them.
@@ -72,6 +72,20 @@ def test_terminal_escapes_in_run_file_texts_are_shown_not_acted_on(tmp_path: Pat
     code, out, err = _cli(capsys, "runs", "--runs-dir", str(runs))
     assert code == 0, err
     assert "\x1b" not in out and "\x9b" not in out and "\\x1b[2J" in out.replace("\n", "")
+
+
+def test_bench_watch_shows_escapes_and_markup_in_run_file_texts_as_text(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`bench watch` prints the procedure, abort reason, events and file name of someone else's run
+    file: escapes as escapes, and rich markup in a file name (``[red]``) as the text it is."""
+    path = _recorded(tmp_path / "runs", procedure=f"p{ESCAPES}", abort_reason=f"stop{ESCAPES}", events=(f"note{ESCAPES}",))
+    path = path.rename(path.with_name("run[red]x.h5"))
+    code, out, err = _cli(capsys, "watch", str(path), "--once")
+    assert code == 0, err
+    for c in "\x1b\x07\x9b\u202e":
+        assert c not in out, repr(c)
+    flat = "".join(line.strip("│ ") for line in out.splitlines())
+    assert "p\\x1b[2J" in flat and "stop\\x1b[2J" in flat and "note\\x1b[2J" in flat, out
+    assert "run[red]x.h5" in out, out
 
 
 def test_a_line_break_in_a_file_name_cannot_forge_a_line_of_a_message(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
