@@ -22,6 +22,7 @@ Light on purpose (the standard library only): every layer may use it.
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 MISSING = "-"
@@ -31,11 +32,16 @@ DIMENSIONLESS = ("", "1", "dimensionless")
 
 
 def unit_text(units: str | None) -> str:
-    """Units as shown: ``""`` for dimensionless, ``delta_degC`` as ``degC``, else as given."""
+    """Units as shown: ``""`` for dimensionless, ``delta_degC`` as ``degC``, a power as a
+    superscript (``deg/s**2`` as ``deg/s²``, ``g^2/Hz`` as ``g²/Hz``), else as given."""
     u = (units or "").strip()
     if u in DIMENSIONLESS:
         return ""
-    return u.replace("delta_", "")
+    return _POWER.sub(lambda m: m.group(1).translate(_SUPERSCRIPT), u.replace("delta_", ""))
+
+
+_POWER = re.compile(r"\s*(?:\*\*|\^)\s*(-?\d+)")
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
 
 
 def is_status_column(name: str) -> bool:

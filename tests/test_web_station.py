@@ -366,3 +366,17 @@ def test_the_chamber_envelope_is_shown_with_its_state(air, mount, state) -> None
     assert sp["state"] == state
     if state == "beyond":
         assert sp["value"] in (mount, air) and (sp["value"] > 105 or sp["value"] < -45)
+
+
+def test_the_rate_tables_limits_show_powers_as_superscripts() -> None:
+    """The live page's limits of a rate table: its acceleration limit reads ``0 .. 60 deg/s²`` (the
+    units ``deg/s**2`` are the parser's spelling, not a reader's)."""
+    from types import SimpleNamespace
+
+    from bench.web.live import limit_states
+
+    runner = SimpleNamespace(lab=SimpleNamespace(kinds={"table": "rate_table"}, config_limits={"table": {}}),
+                             procedure=SimpleNamespace(limits={}), monitor=SimpleNamespace(last={}))
+    rows = {r["quantity"]: r for r in limit_states(runner)}
+    assert rows["accel"]["limits_text"] == "0 .. 60 deg/s²", rows["accel"]
+    assert "**" not in " ".join(r["limits_text"] for r in rows.values())
