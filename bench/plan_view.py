@@ -47,14 +47,14 @@ DURATION_FIELDS = ("duration", "settle", "hold", "timeout", "dwell")
 
 def field_units(step_type: str, field: str) -> str:
     """Units of a numeric step field as shown, from the step's declaration (its kind's, for a kind's
-    step: ``set_point`` degC, ``ramp`` degC/min, ``accel`` deg/s^2, a supply's ``voltage`` V);
+    step: ``set_point`` degC, ``ramp`` degC/min, ``accel`` deg/s², a supply's ``voltage`` V);
     ``""`` where it declares none (a band or a check limit takes its signal's units)."""
     from bench.procedure.schema import step_types
     from bench.quantity_format import unit_text
 
     spec = step_types().get(step_type)
     f = spec.fields.get(field) if spec else None
-    return unit_text(f.units if f else "").replace("**", "^")
+    return unit_text(f.units if f else "")
 
 
 def _shows_timeout(step) -> bool:
