@@ -170,7 +170,8 @@ def _select_files(args: argparse.Namespace, files: Any) -> list:
     if args.dir is None:
         raise InputError("give a directory of run files, or --query with the filters of 'bench runs'", None, "DIR")
     # the workers of an existing cluster may not share this process's working directory
-    return files.files_in(args.dir.absolute() if args.scheduler else args.dir, exclude=args.out)
+    return files.files_in(args.dir.absolute() if args.scheduler else args.dir, exclude=args.out,
+                          warn=lambda why: print(f"bench: warning: {why}", file=sys.stderr))
 
 
 def _job(args: argparse.Namespace, command: str):

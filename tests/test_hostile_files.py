@@ -236,6 +236,24 @@ def test_a_link_out_of_the_runs_directory_is_not_catalogued(tmp_path: Path, caps
     assert "secret_project" not in _cli(capsys, "runs", "--runs-dir", str(runs))[1]
 
 
+def test_a_fleet_skips_links_out_of_its_directory_as_the_catalogue_does(tmp_path: Path) -> None:
+    """`bench fleet ... DIR` works on DIR's runs: a link to another directory's run file (or to the
+    directory) is skipped with the catalogue's reason, not processed as one of DIR's."""
+    from bench.fleet.files import files_in
+
+    runs, elsewhere = tmp_path / "runs", tmp_path / "elsewhere"
+    own = _recorded(runs)
+    outside = _recorded(elsewhere, procedure="secret_project")
+    (runs / "innocent.h5").symlink_to(outside)
+    (runs / "sub").symlink_to(elsewhere, target_is_directory=True)
+    (runs / "inner").mkdir()
+    (runs / "inner" / "same.h5").symlink_to(own)  # a link that stays inside is one of DIR's files
+    warned: list[str] = []
+    refs = files_in(runs, warn=warned.append)
+    assert sorted(r.rel for r in refs) == sorted([own.name, "inner/same.h5"]), refs
+    assert any("innocent.h5: a link to" in w for w in warned) and all("outside" in w for w in warned), warned
+
+
 # ---- S1: no credential in a run file ----------------------------------------------------------------------
 SECRET = "Tr0ub4dor-3"
 

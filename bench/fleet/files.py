@@ -1,7 +1,8 @@
 """Which run files a fleet works on, the name each is known by, and where its output goes.
 
 A fleet's files are the ``*.h5`` files of a directory and its subdirectories
-(:func:`files_in`, sorted by path, the same files ``bench catalog rebuild --recursive`` reads),
+(:func:`files_in`, sorted by path, the same files ``bench catalog rebuild --recursive`` catalogues:
+a link that leads out of the directory is skipped with a warning),
 or the files of catalogue rows (:func:`files_of_rows`). Each file is known by its path relative to
 a root (the directory, or the deepest directory common to the catalogue's files): ``sub/a.h5``.
 Its output is named after it inside the output directory (:func:`destination`):
@@ -33,11 +34,12 @@ class RunFileRef:
     rel: str
 
 
-def files_in(directory: Path, *, exclude: Path | None = None) -> list[RunFileRef]:
+def files_in(directory: Path, *, exclude: Path | None = None, warn: Callable[[str], None] | None = None) -> list[RunFileRef]:
     """The ``*.h5`` files of ``directory`` and its subdirectories, sorted by path, except those under
-    ``exclude`` (the output directory, when it lies inside). :class:`InputError` on ``DIR`` when
-    ``directory`` is not a directory or holds no run file."""
-    from bench.catalog.rebuild import run_files
+    ``exclude`` (the output directory, when it lies inside) and links that lead out of ``directory``
+    (not its runs, as ``bench catalog rebuild`` skips them: each reason passed to ``warn``).
+    :class:`InputError` on ``DIR`` when ``directory`` is not a directory or holds no run file."""
+    from bench.catalog.rebuild import outside, run_files
 
     directory = Path(directory)
     if not directory.is_dir():
@@ -46,6 +48,11 @@ def files_in(directory: Path, *, exclude: Path | None = None) -> list[RunFileRef
     refs = []
     for path in run_files(directory, recursive=True):
         if skip is not None and (path.resolve() == skip or skip in path.resolve().parents):
+            continue
+        link_out = outside(path, directory)
+        if link_out:
+            if warn is not None:
+                warn(link_out)
             continue
         refs.append(RunFileRef(path, path.relative_to(directory).as_posix()))
     if not refs:
