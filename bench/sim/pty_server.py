@@ -3,6 +3,12 @@
 ``bench sim serve --config configs/sim.yaml`` opens one pseudo-terminal per serial instrument,
 prints ``NAME: /dev/pts/N`` lines, and runs the devices on the wall clock until SIGINT/SIGTERM.
 The slave side is put in raw mode, so bytes pass unchanged (no echo, no line discipline).
+
+A device's output goes on the wire whether or not anybody reads: what the pseudo-terminal cannot
+take yet (a client that reads late, a starved core) waits in the endpoint's ``pending`` buffer, as a
+real serial port's bytes wait in the kernel's tty flip buffers, and is written as the client reads.
+Only beyond :data:`HOST_BUFFER_BYTES` are bytes lost (counted in ``dropped``), as a real port
+overruns when its reader stops for good.
 """
 
 from __future__ import annotations
@@ -11,7 +17,7 @@ import os
 import select
 import termios
 import tty
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from serial import SerialException
 
@@ -19,6 +25,10 @@ from bench.clock import WallClock
 from bench.sim.registry import SerialDevice
 
 POLL_S = 0.005  # select() timeout: how often pending device output is pushed to the terminal (s)
+HOST_BUFFER_BYTES = 640 * 1024
+"""Bytes of a device's output held for a client that does not read (B): Linux's limit on a tty
+port's flip buffers, ``TTYB_DEFAULT_MEM_LIMIT`` = 640 KiB (drivers/tty/tty_buffer.c), where a
+real serial port starts to lose received bytes."""
 
 
 @dataclass
@@ -28,6 +38,10 @@ class PtyEndpoint:
     master: int
     slave: int
     path: str
+    pending: bytearray = field(default_factory=bytearray)
+    """Device output the terminal could not take yet (at most :data:`HOST_BUFFER_BYTES`)."""
+    dropped: int = 0
+    """Bytes of device output lost because ``pending`` was full."""
 
 
 def open_endpoint(name: str, device: SerialDevice) -> PtyEndpoint:
@@ -61,13 +75,24 @@ def serve(endpoints: list[PtyEndpoint], clock: WallClock, should_stop) -> None:
                 out = ep.device.take_output(now)
             except SerialException:
                 continue
-            while out:
-                try:
-                    n = os.write(ep.master, out)
-                except BlockingIOError:
-                    # nobody reads the terminal: drop like a UART with no listener
-                    break
-                out = out[n:]
+            room = HOST_BUFFER_BYTES - len(ep.pending)
+            ep.pending += out[:room]
+            ep.dropped += max(len(out) - room, 0)
+            _flush(ep)
+
+
+def _flush(ep: PtyEndpoint) -> None:
+    """Write as much of ``ep.pending`` as the terminal takes now (it is non-blocking)."""
+    while ep.pending:
+        try:
+            n = os.write(ep.master, ep.pending)
+        except (BlockingIOError, InterruptedError):
+            return  # the client has not read yet: the rest waits, as in a port's kernel buffer
+        except OSError:
+            ep.dropped += len(ep.pending)  # the terminal is gone
+            ep.pending.clear()
+            return
+        del ep.pending[:n]
 
 
 def close_endpoints(endpoints: list[PtyEndpoint]) -> None:
