@@ -88,6 +88,43 @@ def test_a_gauss_markov_process_faster_than_the_band_is_white_noise(seed):
     assert slow.terms()["arw_deg_per_sqrt_h"] == pytest.approx(60.0 * w, rel=0.3), slow.describe()
 
 
+def _low_frequency_level(white_var: float, gm: list[tuple[float, float]], dt: float = 1.0) -> float:
+    """√S(0) per sample of white + Gauss-Markov terms: the level an Allan curve reads as ARW past a
+    few τ_c (written here from the AR(1) spectrum, not from the model's code)."""
+    return math.sqrt(white_var + sum(s * s * (1 + math.exp(-dt / t)) / (1 - math.exp(-dt / t)) for s, t in gm))
+
+
+def test_white_noise_beside_a_one_sample_gauss_markov_process_is_not_lost():
+    """τ_c = Δ (φ = e⁻¹), σ_gm = 2 σ_white: white plus this process is nearly one ARMA(1,1) spectrum,
+    and the Whittle likelihood along the white/Gauss-Markov ridge is flat (the Cramér-Rao bound of
+    ln w is 0.6 at this n; benchmarks/study_white_vs_gm.py). Its maximum fell to the white part's
+    floor on some seeds (seed 6 here: 0.005 deg/√h against 0.6), so the model's ARW was wrong by
+    two orders while the Allan read-out was right. Now, where the data cannot reject "no white part"
+    at 5 %, the white part is the likelihood-weighted centre of the ridge and the model says so with
+    its 95 % interval; the spectrum's low-frequency level stays the truth's. Without white noise at
+    all, the model says it cannot tell (an interval from 0)."""
+    n, w, sigma = 3600, 0.01, 0.02
+    level = _low_frequency_level(w * w, [(sigma, 1.0)])
+    unidentified = 0
+    for seed in range(8):
+        rng = np.random.default_rng([seed, 32])
+        m = fit_noise_model(rng.standard_normal(n) * w + _gm(rng, n, sigma, 1.0), 1.0)
+        assert len(m.gm) == 1 and m.gm[0][1] == pytest.approx(1.0, rel=0.35), (seed, m.describe())
+        assert m.terms()["arw_deg_per_sqrt_h"] == pytest.approx(60.0 * w, rel=0.4), (seed, m.describe())
+        # the fit's own scatter of the low-frequency level at n = 3600 (0.97-1.10 on these seeds, the
+        # same before the ridge rule: seed 5, whose white part is identified, reads 1.10)
+        assert _low_frequency_level(m.white_var, m.gm) == pytest.approx(level, rel=0.15), (seed, m.describe())
+        if m.white_interval is not None:
+            unidentified += 1
+            lo, hi = m.terms()["arw_interval_deg_per_sqrt_h"]
+            assert lo == 0.0 and 0.5 * 60.0 * w < hi < 2.0 * 60.0 * w, (seed, m.describe())
+            assert "not told apart" in m.describe()
+    assert unidentified >= 1  # the ridge is flat on some seeds at this size, or the test shows nothing
+    rng = np.random.default_rng(7)
+    alone = fit_noise_model(_gm(rng, n, sigma, 1.0), 1.0)
+    assert alone.white_interval is not None and alone.white_interval[0] == 0.0, alone.describe()
+
+
 @pytest.mark.parametrize("seed", range(2))
 def test_a_large_slow_part_is_fitted_without_overflow(seed):
     """A residual with a slow part 25 times its white noise (a cubic of 0.1 deg/s over the hour, as a
