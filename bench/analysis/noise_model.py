@@ -26,7 +26,9 @@ variances (log-parameters, L-BFGS-B) for a given set of components; components a
 (flicker, random walk, a Gauss-Markov process at the best correlation time of a grid, up to
 :data:`MAX_COMPONENTS`) while the Bayesian information criterion drops by more than
 :data:`IC_MIN` and the component is material (its spectral density reaches :data:`MATERIAL_SHARE` of
-the total at some observed frequency).
+the total at some observed frequency). Where a Gauss-Markov term of τ_c ≈ one sample makes the
+white part unidentifiable (its profile likelihood does not reject "no white part", :data:`WHITE_LR`),
+the white part is the likelihood-weighted mean along that ridge, with its 95 % interval.
 
 **Whitening** (:class:`Whitener`): the steady-state Kalman filter of that state-space model turns r
 into its innovations, which are white with variance S_ε when the model is right; as a transfer
