@@ -407,14 +407,19 @@ class WhiteProfile:
     """Profile band-Whittle log-likelihood at each w."""
     lr_floor: float
     """2·(maximum − profile at the floor): the likelihood ratio of "no white part"."""
+    top: float = math.inf
+    """The fitted spectrum's minimum over the band: the most white variance any fit could hold."""
     k: int | None = None
     """Column of the Gauss-Markov term whose τ_c is refitted along the ridge (None: none)."""
     _refit: Any = None
 
     @property
     def identified(self) -> bool:
-        """Whether the data reject "no white part" at 5 % (:data:`WHITE_LR`)."""
-        return self.lr_floor >= WHITE_LR
+        """Whether the data reject "no white part" at 5 % (:data:`WHITE_LR`), or reject every
+        material one (the 95 % interval stays below :data:`MATERIAL_SHARE` of the spectrum's minimum:
+        the band's top falls faster than the Gauss-Markov term allows, as behind a sensor's low-pass
+        filter, and there is no white part at this rate)."""
+        return self.lr_floor >= WHITE_LR or self.interval()[1] < MATERIAL_SHARE * self.top
 
     def interval(self) -> tuple[float, float]:
         """The grid's w within the 95 % profile-likelihood interval (2·Δ log L ≤ :data:`WHITE_LR`)."""
@@ -485,13 +490,13 @@ def _white_ridge(G: np.ndarray, b: _Bands, theta: np.ndarray, ll: float, taus: l
         l_, th, tau = at(w, th_o)
         return np.concatenate([[w], th]), l_, tau
 
+    top = max(float(np.min(G @ theta)), w_floor)
     if full or lr < WHITE_LR:
-        top = float(np.min(G @ theta))
-        for w in np.linspace(w_floor, max(top, w_floor), WHITE_GRID)[1:]:
+        for w in np.linspace(w_floor, top, WHITE_GRID)[1:]:
             ws.append(float(w))
             lls.append(at(float(w), th_o)[0])
     order = np.argsort(ws)
-    return WhiteProfile(np.asarray(ws)[order], np.asarray(lls)[order], lr, k, refit)
+    return WhiteProfile(np.asarray(ws)[order], np.asarray(lls)[order], lr, top, k, refit)
 
 
 def _columns(model: NoiseModel, omega: np.ndarray) -> np.ndarray:
