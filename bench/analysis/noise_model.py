@@ -85,8 +85,9 @@ refitted) is at least this: χ²₁ at 5 %. Asked when the model has a Gauss-Mar
 :data:`SLOW_SAMPLES`. Below it the data cannot tell the white part from a Gauss-Markov term of τ_c
 about one sample (their sum is nearly one ARMA(1,1) spectrum; the Whittle Cramér-Rao bound of ln w
 at τ_c = Δ, σ_gm = 2σ_white, n = 3600 is 0.56), the likelihood is flat along that ridge and its
-maximum can lie at the floor: then the white part is the likelihood-weighted mean along the ridge
-and the model keeps its 95 % interval (:func:`white_profile`, ``NoiseModel.white_interval``)."""
+maximum can lie at the floor: then, unless the 95 % interval also rejects every material white
+part (:attr:`WhiteProfile.identified`), the white part is the likelihood-weighted mean along the
+ridge and the model keeps its 95 % interval (:func:`white_profile`, ``NoiseModel.white_interval``)."""
 WHITE_GRID = 16
 """Points of the white variance's profile likelihood (linear, floor to the fitted spectrum's
 minimum) that :func:`white_profile` averages over when the white part is not identified."""
@@ -111,9 +112,10 @@ class NoiseModel:
     bin_rows: int = 1
     """Raw samples averaged into each analysed sample (for the read-outs in physical units)."""
     white_interval: tuple[float, float] | None = None
-    """When the data cannot tell the white part from zero (:data:`WHITE_LR`): the white variance's
-    95 % profile-likelihood interval ((deg/s)² per sample), ``white_var`` being the likelihood-weighted
-    mean along it; None when the white part is identified."""
+    """When the data can tell the white part neither from zero nor from a material one
+    (:attr:`WhiteProfile.identified`): the white variance's 95 % profile-likelihood interval
+    ((deg/s)² per sample), ``white_var`` being the likelihood-weighted mean along it; None when the
+    white part is identified."""
 
     @property
     def is_white(self) -> bool:
@@ -431,7 +433,10 @@ class WhiteProfile:
         where the likelihood cannot tell white from the Gauss-Markov term, the centre of what it
         allows rather than its maximum, which may sit at the floor."""
         wts = np.exp(self.loglik - self.loglik.max())
-        return float(np.trapezoid(wts * self.white_var, self.white_var) / np.trapezoid(wts, self.white_var))
+        dw = np.diff(self.white_var)  # trapezoid rule on the grid (numpy 1.26 has no np.trapezoid)
+        area = float(np.sum(0.5 * (wts[1:] + wts[:-1]) * dw))
+        first = float(np.sum(0.5 * (wts[1:] * self.white_var[1:] + wts[:-1] * self.white_var[:-1]) * dw))
+        return first / area
 
     def settle(self) -> tuple[np.ndarray, float, float | None]:
         """(θ, log-likelihood, τ_c of column k) of the model with w at :meth:`mean`."""
