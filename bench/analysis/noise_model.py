@@ -26,7 +26,9 @@ variances (log-parameters, L-BFGS-B) for a given set of components; components a
 (flicker, random walk, a Gauss-Markov process at the best correlation time of a grid, up to
 :data:`MAX_COMPONENTS`) while the Bayesian information criterion drops by more than
 :data:`IC_MIN` and the component is material (its spectral density reaches :data:`MATERIAL_SHARE` of
-the total at some observed frequency).
+the total at some observed frequency). Where a Gauss-Markov term of τ_c ≈ one sample makes the
+white part unidentifiable (its profile likelihood does not reject "no white part", :data:`WHITE_LR`),
+the white part is the likelihood-weighted mean along that ridge, with its 95 % interval.
 
 **Whitening** (:class:`Whitener`): the steady-state Kalman filter of that state-space model turns r
 into its innovations, which are white with variance S_ε when the model is right; as a transfer
@@ -76,6 +78,19 @@ makes as well: it is part of the white rate noise (its low-frequency level is wh
 reads), not a resolved Gauss-Markov term. A fitted τ_c at either end of the grid is not resolved."""
 WHITE_FLOOR = 1e-6
 """The white variance is at least this share of the series' variance (the filter needs R > 0)."""
+WHITE_LR = 3.841
+"""The white part is *identified* when the profile likelihood ratio of the fitted model against the
+same model with the white part at its floor (the other parts, and the fastest Gauss-Markov τ_c,
+refitted) is at least this: χ²₁ at 5 %. Asked when the model has a Gauss-Markov term faster than
+:data:`SLOW_SAMPLES`. Below it the data cannot tell the white part from a Gauss-Markov term of τ_c
+about one sample (their sum is nearly one ARMA(1,1) spectrum; the Whittle Cramér-Rao bound of ln w
+at τ_c = Δ, σ_gm = 2σ_white, n = 3600 is 0.56), the likelihood is flat along that ridge and its
+maximum can lie at the floor: then, unless the 95 % interval also rejects every material white
+part (:attr:`WhiteProfile.identified`), the white part is the likelihood-weighted mean along the
+ridge and the model keeps its 95 % interval (:func:`white_profile`, ``NoiseModel.white_interval``)."""
+WHITE_GRID = 16
+"""Points of the white variance's profile likelihood (linear, floor to the fitted spectrum's
+minimum) that :func:`white_profile` averages over when the white part is not identified."""
 
 
 @dataclass
@@ -96,6 +111,11 @@ class NoiseModel:
     steps: list[dict[str, Any]] = field(default_factory=list)
     bin_rows: int = 1
     """Raw samples averaged into each analysed sample (for the read-outs in physical units)."""
+    white_interval: tuple[float, float] | None = None
+    """When the data can tell the white part neither from zero nor from a material one
+    (:attr:`WhiteProfile.identified`): the white variance's 95 % profile-likelihood interval
+    ((deg/s)² per sample), ``white_var`` being the likelihood-weighted mean along it; None when the
+    white part is identified."""
 
     @property
     def is_white(self) -> bool:
@@ -136,11 +156,16 @@ class NoiseModel:
         return {"arw_deg_per_sqrt_h": 60.0 * n,
                 "bias_instability_deg_per_h": 3600.0 * self.flicker_b if self.flicker_b > 0 else None,
                 "rrw_deg_per_h_per_sqrt_h": 3600.0 * 60.0 * self.rrw_k if self.rrw_k > 0 else None,
-                "gauss_markov": [{"sigma_dps": s, "tau_s": t} for s, t in self.gm]}
+                "gauss_markov": [{"sigma_dps": s, "tau_s": t} for s, t in self.gm],
+                "arw_interval_deg_per_sqrt_h": None if self.white_interval is None else
+                [60.0 * math.sqrt(v * self.dt_s) for v in self.white_interval]}
 
     def describe(self) -> str:
         t = self.terms()
         parts = [f"white {t['arw_deg_per_sqrt_h']:.3g} deg/√h"]
+        if self.white_interval is not None:
+            lo, hi = (60.0 * math.sqrt(v * self.dt_s) for v in self.white_interval)
+            parts[0] += f" ({lo:.2g}-{hi:.2g} within 95 %: not told apart from the fast Gauss-Markov term)"
         if t["bias_instability_deg_per_h"] is not None:
             parts.append(f"flicker B {t['bias_instability_deg_per_h']:.3g} deg/h")
         if t["rrw_deg_per_h_per_sqrt_h"] is not None:
@@ -350,6 +375,15 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
         G = np.column_stack([G, col])
         theta, ll = th, ll2
         model.steps.append({"component": k_, "tau_s": tau, "d_bic": d_bic, "share": share, "accepted": True})
+    if any(c[0] == "gm" and c[1] < SLOW_SAMPLES * dt_s for c in comps):
+        # a fast Gauss-Markov term's nearly flat spectrum can trade its power with the white part
+        taus_c = [c[1] if c[0] == "gm" else None for c in comps]
+        prof = _white_ridge(G, b, theta, ll, taus_c, dt_s, duration, lo_tau, hi_tau, WHITE_FLOOR * var, full=False)
+        if not prof.identified:
+            model.white_interval = prof.interval()
+            theta, ll, tau_k = prof.settle()
+            if prof.k is not None:
+                comps[prof.k] = ("gm", tau_k)
     model.loglik = ll
     model.white_var = max(float(theta[0]), WHITE_FLOOR * var)
     for (kind, tau), v in zip(comps[1:], theta[1:]):
@@ -361,6 +395,113 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
             model.gm.append((math.sqrt(v), float(tau)))
     model.gm.sort(key=lambda g: g[1])
     return model
+
+
+@dataclass
+class WhiteProfile:
+    """The profile likelihood of the white variance w along the white/Gauss-Markov ridge: at each w
+    the other parts (and the fastest Gauss-Markov term's τ_c) refitted (:func:`white_profile`)."""
+
+    white_var: np.ndarray
+    """w, (deg/s)² per sample: the floor, then (when the white part is not identified) a linear grid
+    from the floor to the fitted spectrum's minimum."""
+    loglik: np.ndarray
+    """Profile band-Whittle log-likelihood at each w."""
+    lr_floor: float
+    """2·(maximum − profile at the floor): the likelihood ratio of "no white part"."""
+    top: float = math.inf
+    """The fitted spectrum's minimum over the band: the most white variance any fit could hold."""
+    k: int | None = None
+    """Column of the Gauss-Markov term whose τ_c is refitted along the ridge (None: none)."""
+    _refit: Any = None
+
+    @property
+    def identified(self) -> bool:
+        """Whether the data reject "no white part" at 5 % (:data:`WHITE_LR`), or reject every
+        material one (the 95 % interval stays below :data:`MATERIAL_SHARE` of the spectrum's minimum:
+        the band's top falls faster than the Gauss-Markov term allows, as behind a sensor's low-pass
+        filter, and there is no white part at this rate)."""
+        return self.lr_floor >= WHITE_LR or self.interval()[1] < MATERIAL_SHARE * self.top
+
+    def interval(self) -> tuple[float, float]:
+        """The grid's w within the 95 % profile-likelihood interval (2·Δ log L ≤ :data:`WHITE_LR`)."""
+        keep = self.white_var[2.0 * (self.loglik.max() - self.loglik) <= WHITE_LR]
+        return (0.0 if keep.min() <= self.white_var[0] else float(keep.min())), float(keep.max())
+
+    def mean(self) -> float:
+        """The likelihood-weighted mean of w along the ridge (a flat prior in w on the grid's range):
+        where the likelihood cannot tell white from the Gauss-Markov term, the centre of what it
+        allows rather than its maximum, which may sit at the floor."""
+        wts = np.exp(self.loglik - self.loglik.max())
+        dw = np.diff(self.white_var)  # trapezoid rule on the grid (numpy 1.26 has no np.trapezoid)
+        area = float(np.sum(0.5 * (wts[1:] + wts[:-1]) * dw))
+        first = float(np.sum(0.5 * (wts[1:] * self.white_var[1:] + wts[:-1] * self.white_var[:-1]) * dw))
+        return first / area
+
+    def settle(self) -> tuple[np.ndarray, float, float | None]:
+        """(θ, log-likelihood, τ_c of column k) of the model with w at :meth:`mean`."""
+        return self._refit(self.mean())
+
+
+def white_profile(r: np.ndarray, model: NoiseModel) -> WhiteProfile:
+    """The white variance's profile likelihood of ``model`` on the residual ``r`` it was fitted to,
+    over the full grid (for studies and tests; :func:`fit_noise_model` computes the grid only when
+    the white part is not identified)."""
+    r = np.asarray(r, dtype=float)
+    b = _bands(r)
+    G = _columns(model, b.omega)
+    taus = [None] * (G.shape[1] - len(model.gm)) + [t for _, t in model.gm]
+    th = _theta(model)
+    lo_tau, hi_tau = GM_MIN_SAMPLES * model.dt_s, GM_RESOLVED * model.duration_s
+    return _white_ridge(G, b, th, _whittle(th, G, b), taus, model.dt_s, model.duration_s, lo_tau, hi_tau,
+                        WHITE_FLOOR * float(np.var(r)), full=True)
+
+
+def _white_ridge(G: np.ndarray, b: _Bands, theta: np.ndarray, ll: float, taus: list[float | None], dt: float,
+                 duration: float, lo_tau: float, hi_tau: float, w_floor: float, full: bool) -> WhiteProfile:
+    """The profile of the white variance (column 0 of ``G``); ``taus``: each column's Gauss-Markov
+    τ_c or None. The grid is computed when ``full`` or when the white part is not identified."""
+    from scipy.optimize import minimize_scalar
+
+    gm_cols = [(t, j) for j, t in enumerate(taus) if t is not None]
+    k = min(gm_cols)[1] if gm_cols else None
+    step = math.log(10.0) / GM_PER_DECADE
+
+    def at(w: float, th0: np.ndarray) -> tuple[float, np.ndarray, float | None]:
+        others = list(range(1, G.shape[1]))
+        if k is None:
+            th, l_ = _fit(G[:, others], b, th0, offset=w)
+            return l_, th, None
+        t0 = taus[k]
+        lo = max(math.log(t0) - step, math.log(lo_tau))
+        hi = max(min(math.log(t0) + step, math.log(hi_tau)), lo)
+
+        def cols(x: float) -> np.ndarray:
+            g = G[:, others].copy()
+            g[:, k - 1] = _basis("gm", b.omega, dt, duration, math.exp(x))
+            return g
+
+        res = minimize_scalar(lambda x: -_fit(cols(x), b, th0, offset=w)[1], bounds=(lo, hi),
+                              method="bounded", options={"xatol": 0.02})
+        th, l_ = _fit(cols(res.x), b, th0, offset=w)
+        return l_, th, math.exp(res.x)
+
+    th_o = np.maximum(theta[1:], 1e-300)
+    l_floor = at(w_floor, th_o)[0]
+    ws, lls = [w_floor, float(theta[0])], [l_floor, ll]
+    lr = 2.0 * (max(ll, l_floor) - l_floor)
+
+    def refit(w: float) -> tuple[np.ndarray, float, float | None]:
+        l_, th, tau = at(w, th_o)
+        return np.concatenate([[w], th]), l_, tau
+
+    top = max(float(np.min(G @ theta)), w_floor)
+    if full or lr < WHITE_LR:
+        for w in np.linspace(w_floor, top, WHITE_GRID)[1:]:
+            ws.append(float(w))
+            lls.append(at(float(w), th_o)[0])
+    order = np.argsort(ws)
+    return WhiteProfile(np.asarray(ws)[order], np.asarray(lls)[order], lr, top, k, refit)
 
 
 def _columns(model: NoiseModel, omega: np.ndarray) -> np.ndarray:
