@@ -354,6 +354,31 @@ def test_slow_structure_larger_than_its_noise_model_is_not_noise():
     assert result.noise["z"]["named"] == ["angle_random_walk"], result.noise["z"]
 
 
+@pytest.mark.parametrize("seed", [1, 5])
+def test_gravity_segments_are_the_stretches_between_tilt_moves(seed):
+    """noise.gravity_segments (the slow-structure check's third statistic, docs/diagnose.md 6b): one
+    segment per stretch between the table's tilt moves, cut inside each move, from the measured
+    accelerometer only. The moves are the test's own knowledge of the generator: where the table's
+    rate has a part across its axis (the tilt rate). Seed 5 dwells about 100 s at one tilt."""
+    from bench.analysis.diagnose.data import prepare
+    from bench.analysis.diagnose.noise import gravity_segments
+
+    session, _ = hidden_session(["earth_rate"], _seed("unnamed", 1, "earth_rate", seed))
+    inp = session.inputs
+    k = int(np.argmax(np.abs(inp.rate_dps).mean(axis=0)))  # the table axis
+    across = np.delete(inp.rate_dps, k, axis=1)
+    moving = np.hypot(across[:, 0], across[:, 1]) > 1e-6
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], moving.astype(np.int8), [0]])))
+    moves = [(inp.time_s[i], inp.time_s[j - 1]) for i, j in zip(edges[::2], edges[1::2])]
+    p = prepare(session.dataset)
+    labels = gravity_segments(p)
+    assert labels is not None
+    cuts = p.t[np.flatnonzero(np.diff(labels)) + 1]
+    assert len(cuts) == len(moves) >= 3, (cuts, moves)
+    for c, (t0, t1) in zip(cuts, moves):
+        assert t0 - 10.0 <= c <= t1 + 10.0, (c, t0, t1)
+
+
 def test_the_named_slow_shape_statistic_uses_only_the_unhidden_vocabulary():
     """noise.shape_d_ic (beyond_noise's second statistic): on a warm-up of τ 297 s on x it is the
     warm-up's ΔIC, far below what any other slow shape makes of it; with the warm-up hidden it is the

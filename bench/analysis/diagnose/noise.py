@@ -93,7 +93,7 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
     not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, tests at 5 % and
     1 % (2 % for the two statistics below together), about 0.1 % together for a random walk (they are
-    independent under the model):
+    independent under the model), or the third alone on data with moves of the unit:
 
     * **uneven in time**: the stationarity likelihood ratio (four stretches, each its own slow
       variances) at :data:`UNEVEN_P` as a χ² test (not the BIC of :func:`fit_models`, which asks for
@@ -107,6 +107,12 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
       transient, a thermal lag or a hysteresis it took for slow noise can make more than any
       realisation. Each realisation is searched over the same grids, so the test pays for the
       search itself (no look-elsewhere charge).
+    * **levels between the unit's moves**, asked whether or not the slow part is uneven: on data
+      with at least two segments of the measured gravity direction (:func:`gravity_segments`),
+      the ΔIC of one level per segment minus the time probe's (:func:`segment_d_ic`), below that of
+      every realisation. A random walk does not care when the unit moves; an Earth rate on a
+      tilting table's axis is a level between the tilts (a 1 % test alone: about 1 in 100 random
+      walks on such a session come out "unexplained").
 
     ``docs/diagnose.md``, 6b "Larger than the model makes". The decision is made on the unwhitened
     fits and kept through the whitened rounds: a whitener with the slow part in it hides the structure
