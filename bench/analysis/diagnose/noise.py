@@ -308,8 +308,8 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
             m.steps.append({"component": "slow part", "d_bic": ev["d_ic"], "accepted": False,
                             "reason": f"structure in time ({ev['statistic']} ΔIC {ev['d_ic']:+.0f}) beyond what "
                                       f"{ev['model']} makes ({GOF_DRAWS} realisations, none below "
-                                      f"{ev['d_ic_draws_min']:+.0f}) and uneven in time (χ² {ev['uneven_chi2']:.1f}, "
-                                      f"p {ev['uneven_p']:.2g}): left to the probes"})
+                                      f"{ev['d_ic_draws_min']:+.0f}) and {'un' if ev['uneven_p'] < UNEVEN_P else ''}even "
+                                      f"in time (χ² {ev['uneven_chi2']:.1f}, p {ev['uneven_p']:.2g}): left to the probes"})
             out[a] = m
             continue
         m = _full_model(p, a, r)
