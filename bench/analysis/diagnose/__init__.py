@@ -91,7 +91,10 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         search_hidden |= frozenset(n for n in CANDIDATES if n not in named and not CANDIDATES[n].noise_term)
     for _ in range(NOISE_ROUNDS):
         whiten = {a: m.whitener() for a, m in models.items() if not m.is_white}
-        if not whiten and not p.whiten:
+        if not whiten:
+            # white everywhere: at once, or once the selection against the model found the structure
+            # the model had taken (then a white selection again is the first one, whose residual gave
+            # that model: a cycle, hidden Earth rate CI seed 0's y, Gauss-Markov <-> table angle)
             break
         if progress is not None:
             progress("selecting again against the noise model ("

@@ -27,6 +27,7 @@ import numpy as np
 from bench.analysis.diagnose.data import Prepared
 from bench.analysis.diagnose.engine import Term, build_state
 from bench.analysis.diagnose.result import Finding
+from bench.analysis.diagnose.terms import Built, Probe
 from bench.analysis.noise_model import (IC_MIN, SLOW_SAMPLES, NoiseModel, fit_noise_model, stationarity,
                                        stationarity_test)
 
@@ -80,6 +81,8 @@ S5 phone at rest (6 h, y: time probe ΔIC −443) is beyond all of 19 realisatio
 not of 99."""
 GOF_SEED = 952
 """Fixed seed of those realisations: the engine's answer does not change from run to run."""
+STATISTICS = ("time probe", "best named slow shape", "gravity segments against time")
+"""What :func:`beyond_noise` compares with the realisations ("d_ic" of its evidence: that statistic)."""
 UNEVEN_P = 0.05
 """Level of the stationarity test (:func:`bench.analysis.noise_model.stationarity_test`) that
 :func:`beyond_noise` also asks for."""
@@ -90,7 +93,7 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
     not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, tests at 5 % and
     1 % (2 % for the two statistics below together), about 0.1 % together for a random walk (they are
-    independent under the model):
+    independent under the model), or the third alone on data with moves of the unit:
 
     * **uneven in time**: the stationarity likelihood ratio (four stretches, each its own slow
       variances) at :data:`UNEVEN_P` as a χ² test (not the BIC of :func:`fit_models`, which asks for
@@ -104,6 +107,12 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
       transient, a thermal lag or a hysteresis it took for slow noise can make more than any
       realisation. Each realisation is searched over the same grids, so the test pays for the
       search itself (no look-elsewhere charge).
+    * **levels between the unit's moves**, asked whether or not the slow part is uneven: on data
+      with at least two segments of the measured gravity direction (:func:`gravity_segments`),
+      the ΔIC of one level per segment minus the time probe's (:func:`segment_d_ic`), below that of
+      every realisation. A random walk does not care when the unit moves; an Earth rate on a
+      tilting table's axis is a level between the tilts (a 1 % test alone: about 1 in 100 random
+      walks on such a session come out "unexplained").
 
     ``docs/diagnose.md``, 6b "Larger than the model makes". The decision is made on the unwhitened
     fits and kept through the whitened rounds: a whitener with the slow part in it hides the structure
@@ -111,13 +120,16 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     from bench.analysis.diagnose.openworld import probe_term
 
     def stats(q: Prepared, need: list[bool]) -> list[float]:
-        """(time probe ΔIC, best named shape ΔIC) on ``q``'s axis ``a``; NaN where not ``need``ed."""
+        """(time probe ΔIC, best named shape ΔIC, segment levels' ΔIC − time probe's) on ``q``'s axis
+        ``a``; NaN where not ``need``ed."""
         state = build_state(q, terms)
-        hit = probe_term(q, state, "probe:time", a) if need[0] else None
-        return [(float(hit[1].d_ic) if hit is not None else 0.0) if need[0] else math.nan,
-                shape_d_ic(q, state, a, hidden) if need[1] else math.nan]
+        hit = probe_term(q, state, "probe:time", a) if need[0] or need[2] else None
+        t = float(hit[1].d_ic) if hit is not None else 0.0
+        return [t if need[0] else math.nan, shape_d_ic(q, state, a, hidden) if need[1] else math.nan,
+                segment_d_ic(q, state, a, segments) - t if need[2] else math.nan]
 
     out: dict[str, Any] = {}
+    segments = gravity_segments(p)
     saved_w, saved_g = p.whiten, p.gyro
     p.whiten = {}
     try:
@@ -126,9 +138,10 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
             if not has_slow_part(m):
                 continue  # the model takes no slow structure: the probes keep what they find
             lr, p_uneven = stationarity_test(resid[a], m)
-            if p_uneven >= UNEVEN_P:
+            uneven = bool(p_uneven < UNEVEN_P)
+            beyond = [uneven, uneven, segments is not None]  # which statistics are asked
+            if not any(beyond):
                 continue
-            beyond = [True, True]
             observed = stats(p, beyond)
             rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
             fitted = saved_g[a] - resid[a]
@@ -142,7 +155,7 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
             p.gyro = saved_g
             if any(beyond):
                 i = beyond.index(True)
-                out[a] = {"statistic": ("time probe", "best named slow shape")[i], "d_ic": observed[i],
+                out[a] = {"statistic": STATISTICS[i], "d_ic": observed[i],
                           "d_ic_draws_min": min(d[i] for d in draws), "model": m.describe(),
                           "uneven_chi2": lr, "uneven_p": p_uneven}
     finally:
@@ -168,6 +181,70 @@ def shape_d_ic(p: Prepared, state: Any, a: str, hidden: frozenset[str] = frozens
         if e is not None:
             best = min(best, float(e.d_ic))
     return best
+
+
+SEGMENT_G = 0.05
+"""A move of the measured gravity direction (g, any component used) that starts a new segment for
+:func:`gravity_segments`: 2.9° of tilt; the accelerometer's noise over :data:`SEGMENT_SMOOTH_S` is
+below 1 mg on the sessions and logs here."""
+SEGMENT_SMOOTH_S = 10.0
+"""The specific force is averaged over this many seconds before moves are looked for, and a move is
+a change of more than :data:`SEGMENT_G` across twice this span."""
+SEGMENT_BLOCKS = 1
+"""A still stretch shorter than this many cross-validation blocks (30 s at 1 Hz) is not a segment of
+its own (its level would be held out whole in some fold); its rows go to the neighbouring segments.
+Not 2: a tilt that dwells 100 s between two moves (``earth_rate`` seed 5 of tests/test_diagnose.py)
+is a level of its own."""
+
+
+def gravity_segments(p: Prepared) -> np.ndarray | None:
+    """Labels 0..K−1 of the rows: the stretches in which the measured gravity direction stays put,
+    split at the middle of each move between them (a tilt, a turn of the unit by hand), or None when
+    the data have no accelerometer or fewer than two such stretches. On a turning table only the
+    component along its axis is used (the others turn with the table angle all the time)."""
+    if p.accel is None:
+        return None
+    cols = ["xyz".index(p.table_axis.lstrip("+-"))] if p.table_axis else [0, 1, 2]
+    w = max(int(round(SEGMENT_SMOOTH_S * p.fs)), 1)
+    k = np.ones(w) / w
+    g = np.column_stack([np.convolve(np.pad(p.accel[:, c], (w // 2, w - 1 - w // 2), mode="edge"), k, mode="valid")
+                         for c in cols])
+    ends = np.pad(g, ((w, w), (0, 0)), mode="edge")
+    still = np.max(np.abs(ends[2 * w:] - ends[:-2 * w]), axis=1) <= SEGMENT_G
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
+    runs = [(int(i), int(j)) for i, j in zip(edges[::2], edges[1::2]) if j - i >= SEGMENT_BLOCKS * p.blocks.length]
+    if len(runs) < 2:
+        return None
+    labels = np.zeros(p.n, dtype=np.int64)
+    for k_seg in range(1, len(runs)):
+        labels[(runs[k_seg - 1][1] + runs[k_seg][0]) // 2:] = k_seg
+    return labels
+
+
+def segment_d_ic(p: Prepared, state: Any, a: str, labels: np.ndarray) -> float:
+    """ΔIC on axis ``a`` of ``state`` of one free level per segment of ``labels``
+    (:func:`gravity_segments`), by the engine's held-out criterion like any candidate; 0 when it
+    cannot be evaluated."""
+    from bench.analysis.diagnose.engine import evaluate
+
+    e = evaluate(p, state, SegmentLevels(labels), a, state.context())
+    return float(e.d_ic) if e is not None else 0.0
+
+
+class SegmentLevels(Probe):
+    """One level per segment of :func:`gravity_segments` (the first is the baseline's constant): what
+    moves with the unit's orientation and stays put between its moves. A generic probe for
+    :func:`segment_d_ic`: it names nothing."""
+
+    name = "probe:gravity_segments"
+    where = "gravity direction segments (a level between moves)"
+
+    def __init__(self, labels: np.ndarray):
+        self.labels = labels
+
+    def build(self, p, axis, nl, ctx):
+        z = (self.labels[:, None] == np.arange(1, int(self.labels.max()) + 1)[None, :]).astype(float)
+        return Built(cols={axis: z})
 
 
 def _full_model(p: Prepared, a: str, r: np.ndarray) -> NoiseModel:
@@ -231,8 +308,8 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
             m.steps.append({"component": "slow part", "d_bic": ev["d_ic"], "accepted": False,
                             "reason": f"structure in time ({ev['statistic']} ΔIC {ev['d_ic']:+.0f}) beyond what "
                                       f"{ev['model']} makes ({GOF_DRAWS} realisations, none below "
-                                      f"{ev['d_ic_draws_min']:+.0f}) and uneven in time (χ² {ev['uneven_chi2']:.1f}, "
-                                      f"p {ev['uneven_p']:.2g}): left to the probes"})
+                                      f"{ev['d_ic_draws_min']:+.0f}) and {'un' if ev['uneven_p'] < UNEVEN_P else ''}even "
+                                      f"in time (χ² {ev['uneven_chi2']:.1f}, p {ev['uneven_p']:.2g}): left to the probes"})
             out[a] = m
             continue
         m = _full_model(p, a, r)
