@@ -232,11 +232,6 @@ def test_a_wandering_real_noise_hour_names_nothing(real_log):
 
 
 REAL_NOISE_MISSES = {
-    ("s5", "warmup_transient", 2): "a warm-up of 0.16 deg/s, τ 292 s, is taken into a rate_random_walk on its axis: "
-                                   "its slow part is uneven (stationarity χ² p 0.009) but its structure in time (ΔIC "
-                                   "-327) is matched by 1 of 99 realisations of the fitted random walk (p 0.02, the "
-                                   "test is at 1 %); the best warm-up over its grid (ΔIC -125) is matched by 6 of "
-                                   "the 99",
     ("s5", "scale_factor_tempco", 0): "y is left unexplained against time (ΔIC -41 unwhitened, -10 against the "
                                       "Gauss-Markov model) next to the correctly named scale_factor_tempco: the phone's "
                                       "wander, which y's model (no slow part) does not take",
