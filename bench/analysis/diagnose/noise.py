@@ -89,8 +89,8 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
                  hidden: frozenset[str] = frozenset(), alternatives: dict[str, Any] | None = None) -> dict[str, Any]:
     """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
     not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, tests at 5 % and
-    1 % (2 % for the two statistics below together), about 0.1 % together for a random walk (they are
-    independent under the model):
+    1 % (at most 4 % for the four statistics below together), at most about 0.2 % together for a
+    random walk (they are independent under the model):
 
     * **uneven in time**: the stationarity likelihood ratio (four stretches, each its own slow
       variances) at :data:`UNEVEN_P` as a χ² test (not the BIC of :func:`fit_models`, which asks for

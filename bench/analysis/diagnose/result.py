@@ -225,7 +225,7 @@ def alternative_text(effect: str, alt: dict[str, Any]) -> str:
     """The sentence for a slow noise finding's ``alternative`` (``noise.alternative_evidence``)."""
     return (f"one run cannot tell {effect} from {alt['effect']} ({alt['describe']}; ΔIC {alt['d_ic']:+.0f}): only "
             f"{alt['draws_as_large']} of {alt['draws']} realisations of the noise model make a named slow shape as "
-            f"large; {alt['separated_by']} separates them")
+            f"large; what separates them: {alt['separated_by']}")
 
 
 def _band_text(findings: list[Finding]) -> str:
