@@ -293,6 +293,12 @@ def test_clean_session_10hz_names_nothing():
 
 
 KNOWN_MISSES = {
+    ("unnamed", "warmup_transient", 1): "a hidden slow warm-up (τ 297 s) passes the stationarity check and is of the "
+                                        "size its fitted random walk (K 37 deg/h/√h) makes (time probe ΔIC -1698, 17 of "
+                                        "99 realisations as large; the best unhidden named slow shape, a bias step at ΔIC -107, "
+                                        "23 of 99: no annotation): named a rate random walk. The early slow increments "
+                                        "separate it (1.14 against draws to 1.02) but name a warm-up in the S5 phone's "
+                                        "wander (S5 periodic seed 1): not used",
     ("unnamed", "earth_rate", 1): "the hidden Earth rate's slow part on x (time probe ΔIC -421) is of the size its "
                                   "fitted random walk makes (83 of 99 realisations as large): named a rate random walk",
     ("unnamed", "earth_rate", 3): "the hidden Earth rate's part along z (it moves with the tilt) is found by the time "

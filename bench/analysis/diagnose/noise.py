@@ -89,8 +89,8 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
                  hidden: frozenset[str] = frozenset(), alternatives: dict[str, Any] | None = None) -> dict[str, Any]:
     """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
     not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, tests at 5 % and
-    1 % (at most 4 % for the four statistics below together), at most about 0.2 % together for a
-    random walk (they are independent under the model):
+    1 % (2 % for the two statistics below together), about 0.1 % together for a random walk (they are
+    independent under the model):
 
     * **uneven in time**: the stationarity likelihood ratio (four stretches, each its own slow
       variances) at :data:`UNEVEN_P` as a χ² test (not the BIC of :func:`fit_models`, which asks for
@@ -104,12 +104,6 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
       transient, a thermal lag or a hysteresis it took for slow noise can make more than any
       realisation. Each realisation is searched over the same grids, so the test pays for the
       search itself (no look-elsewhere charge).
-
-    * two statistics aimed at a transient (a warm-up spends its change in the first τ after power-on;
-      the walk fitted to the whole run keeps wandering at its K all run): the best named slow shape
-      judged against the fitted model itself (:func:`model_shape_d_ic`: generalised least squares,
-      "shape + this noise" against "this noise alone"), and the slow increments of the first quarter
-      against the rest (:func:`early_increments`).
 
     ``docs/diagnose.md``, 6b "Larger than the model makes". The decision is made on the unwhitened
     fits and kept through the whitened rounds: a whitener with the slow part in it hides the structure
@@ -126,9 +120,7 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
         state = build_state(q, terms)
         hit = probe_term(q, state, "probe:time", a) if need[0] else None
         return [(float(hit[1].d_ic) if hit is not None else 0.0) if need[0] else math.nan,
-                shape_d_ic(q, state, a, hidden) if need[1] else math.nan,
-                model_shape_d_ic(q, terms, a, m, hidden) if need[2] else math.nan,
-                -early_increments(state.axes[a].resid(), m.dt_s) if need[3] else math.nan]
+                shape_d_ic(q, state, a, hidden) if need[1] else math.nan]
 
     out: dict[str, Any] = {}
     saved_w, saved_g = p.whiten, p.gyro
@@ -143,7 +135,6 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
                 continue
             beyond = [True] * len(STATISTICS)
             observed = stats(p, beyond)
-            beyond[2] = observed[2] <= -STRONG_D_IC  # a weak shape against the model is no evidence however rare
             rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
             fitted = saved_g[a] - resid[a]
             draws: list[list[float]] = []
@@ -174,15 +165,8 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     return out
 
 
-STATISTICS = ("time probe", "best named slow shape", "best named slow shape against the noise model",
-              "early slow increments")
+STATISTICS = ("time probe", "best named slow shape")
 """The statistics of :func:`beyond_noise`, each compared with its value on the realisations."""
-STRONG_D_IC = 6.0
-"""The best named slow shape against the noise model (:func:`model_shape_d_ic`) counts only from this
-ΔIC down ("strong" evidence on Kass & Raftery's 2 ln B scale, 1995): its draws are mostly exactly 0
-(no shape at all), so a ΔIC of −2 can be below all 99 and mean nothing. The CATS tag's 23.1-h
-stretch, z (real noise at rest, random walk model): −1.9 against 99 draws of 0; the S5 warm-up:
-−7.8 against draws to −1.5."""
 ALTERNATIVE_MATCHES = 10
 """A named slow shape is reported as what one run cannot tell from a slow noise term when fewer than
 this many of the :data:`GOF_DRAWS` realisations make a shape as large (fewer than 10 %): the draws
@@ -218,45 +202,6 @@ def shape_d_ic(p: Prepared, state: Any, a: str, hidden: frozenset[str] = frozens
     """The ΔIC of :func:`best_shape`; 0 when none applies."""
     e = best_shape(p, state, a, hidden)
     return float(e.d_ic) if e is not None else 0.0
-
-
-def model_shape_d_ic(p: Prepared, terms: list[Term], a: str, m: NoiseModel, hidden: frozenset[str] = frozenset()) -> float:
-    """:func:`shape_d_ic` with the fits made against noise model ``m`` on axis ``a`` (prewhitened by it):
-    the likelihood of "a named slow shape + this noise" against "this noise alone". A walk's
-    realisation has white increments, so against the walk a shape is found only where the
-    increments are not white: a warm-up's decaying ones in the first τ. The S5 warm-up (0.16 deg/s,
-    τ 292 s) reaches −7.8 here against draws to −1.5; with the model's K inflated by the warm-up
-    itself the test is conservative."""
-    saved = p.whiten
-    w = m.whitener()
-    p.whiten = {a: w} if w is not None else {}
-    try:
-        return shape_d_ic(p, build_state(p, terms), a, hidden)
-    finally:
-        p.whiten = saved
-
-
-EARLY_WINDOWS_S = (60.0, 120.0, 240.0, 480.0)
-"""Block widths of :func:`early_increments` (s): the τ of a bench warm-up (docs/diagnose.md, 4)."""
-
-
-def early_increments(r: np.ndarray, dt_s: float) -> float:
-    """The largest, over the block widths :data:`EARLY_WINDOWS_S`, of ln(mean squared increment of
-    the block means in the first quarter of the run / the same in the other three): a random walk's
-    (and white noise's) increments are stationary, so it scatters about 0; a transient from power-on
-    makes it positive. Dimensionless; −inf when no width gives 16 blocks."""
-    best = -math.inf
-    for w in EARLY_WINDOWS_S:
-        k = max(1, int(round(w / dt_s)))
-        nb = r.size // k
-        if nb < 16:
-            continue
-        d = np.diff(r[: nb * k].reshape(nb, k).mean(axis=1))
-        q = max(2, d.size // 4)
-        late = float(np.mean(d[q:] ** 2))
-        if late > 0:
-            best = max(best, math.log(float(np.mean(d[:q] ** 2)) / late))
-    return best
 
 
 def slow_alternative(p: Prepared, terms: list[Term], a: str, hidden: frozenset[str] = frozenset()) -> dict[str, Any] | None:
