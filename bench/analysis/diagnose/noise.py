@@ -138,16 +138,11 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
             rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
             fitted = saved_g[a] - resid[a]
             draws: list[list[float]] = []
-            shapes_as_large = 0  # draws whose best named shape is as large as the data's (for alternatives)
-            count = alternatives is not None and observed[1] < 0
             for _ in range(GOF_DRAWS):
                 p.gyro = {**saved_g, a: fitted + realisation(m, resid[a].size, rng)}
-                counting = count and shapes_as_large < ALTERNATIVE_MATCHES
-                # only the statistics no draw has matched yet (and the shape while counting)
-                draws.append(stats(p, [b or (i == 1 and counting) for i, b in enumerate(beyond)]))
-                shapes_as_large += int(draws[-1][1] <= observed[1])
+                draws.append(stats(p, beyond))  # only the statistics no draw has matched yet
                 beyond = [b and draws[-1][i] > observed[i] for i, b in enumerate(beyond)]
-                if not any(beyond) and not (count and shapes_as_large < ALTERNATIVE_MATCHES):
+                if not any(beyond):
                     break  # each statistic matched by a draw: within the model
             p.gyro = saved_g
             if any(beyond):
@@ -155,11 +150,15 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
                 out[a] = {"statistic": STATISTICS[i], "d_ic": observed[i],
                           "d_ic_draws_min": min(d[i] for d in draws), "model": m.describe(),
                           "uneven_chi2": lr, "uneven_p": p_uneven}
-            elif count and shapes_as_large < ALTERNATIVE_MATCHES:
-                alt = slow_alternative(p, terms, a, hidden)
-                if alt is not None:
-                    alternatives[a] = {**alt, "draws_as_large": shapes_as_large, "draws": len(draws),
-                                       "noise_model": m.describe(), "uneven_p": p_uneven}
+            elif alternatives is not None and observed[1] < 0:
+                shapes = [d[1] for d in draws]
+                matched = _shapes_as_large(p, a, fitted, m, shapes, lambda q: stats(q, [False, True])[1], observed[1])
+                p.gyro = saved_g
+                if matched < ALTERNATIVE_MATCHES:
+                    alt = slow_alternative(p, terms, a, hidden)
+                    if alt is not None:
+                        alternatives[a] = {**alt, "draws_as_large": matched, "draws": GOF_DRAWS,
+                                           "noise_model": m.describe(), "uneven_p": p_uneven}
     finally:
         p.whiten, p.gyro = saved_w, saved_g
     return out
@@ -202,6 +201,27 @@ def shape_d_ic(p: Prepared, state: Any, a: str, hidden: frozenset[str] = frozens
     """The ΔIC of :func:`best_shape`; 0 when none applies."""
     e = best_shape(p, state, a, hidden)
     return float(e.d_ic) if e is not None else 0.0
+
+
+def _shapes_as_large(p: Prepared, a: str, fitted: np.ndarray, m: NoiseModel, shapes: list[float],
+                     shape: Any, observed: float) -> int:
+    """How many of the :data:`GOF_DRAWS` realisations (the same fixed-seed series as
+    :func:`beyond_noise`'s, replayed) have a best named shape as large as ``observed``, counted up to
+    :data:`ALTERNATIVE_MATCHES`: ``shapes`` are those already computed (NaN: not), ``shape(p)`` computes
+    one on ``p`` with axis ``a`` replaced. Leaves ``p.gyro`` changed (the caller restores it)."""
+    saved_g = p.gyro
+    rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
+    matched = 0
+    for k in range(GOF_DRAWS):
+        x = realisation(m, fitted.size, rng)
+        v = shapes[k] if k < len(shapes) else math.nan
+        if math.isnan(v):
+            p.gyro = {**saved_g, a: fitted + x}
+            v = shape(p)
+        matched += int(v <= observed)
+        if matched >= ALTERNATIVE_MATCHES:
+            break
+    return matched
 
 
 def slow_alternative(p: Prepared, terms: list[Term], a: str, hidden: frozenset[str] = frozenset()) -> dict[str, Any] | None:
