@@ -296,7 +296,9 @@ KNOWN_MISSES = {
     ("unnamed", "warmup_transient", 1): "a hidden slow warm-up (τ 297 s) passes the stationarity check and is of the "
                                         "size its fitted random walk (K 37 deg/h/√h) makes (time probe ΔIC -1698, 17 of "
                                         "99 realisations as large; the best unhidden named slow shape, a bias step at ΔIC -107, "
-                                        "23 of 99): named a rate random walk",
+                                        "23 of 99: no annotation): named a rate random walk. The early slow increments "
+                                        "separate it (1.14 against draws to 1.02) but name a warm-up in the S5 phone's "
+                                        "wander (S5 periodic seed 1): not used",
 }
 """CI cases that still fail, each with what happens: strict xfail, so a fix shows as XPASS and fails
 until the mark is removed (docs/diagnose.md, known limits)."""
@@ -396,6 +398,45 @@ def test_the_named_slow_shape_statistic_uses_only_the_unhidden_vocabulary():
     assert every < 10 * rest < 0, (every, rest)
     assert shape_d_ic(p, state, "x", frozenset(n for n, c in CANDIDATES.items() if c.family == "time")) == 0.0
     assert shape_d_ic(p, state, "y") == 0.0  # nothing slow on y
+
+
+def _walk_and_warmup(amplitude_dps: float):
+    """A 1-h session at 1 Hz, a random walk K 1.5e-4 deg/s/√s on x and a warm-up of ``amplitude_dps``,
+    τ 300 s, on the same axis (0: none)."""
+    rng = np.random.default_rng([2, 32])
+    base = BaselineSensor.random(rng, 1.0)
+    eff = [{"effect": "rate_random_walk", "axis": "x", "params": {"k_dps_per_sqrt_s": 1.5e-4}}]
+    if amplitude_dps:
+        eff.append({"effect": "warmup_transient", "axis": "x", "params": {"amplitude_dps": amplitude_dps, "tau_s": 300.0}})
+    return make_session(3600.0, 1.0, eff, seed=int(rng.integers(2**31)), mount="z", base=base)
+
+
+def test_a_walk_one_run_cannot_tell_from_a_warm_up_says_so(tmp_path):
+    """A warm-up of 0.02 deg/s (τ 300 s) on a random walk's axis comes out the walk (its shape is
+    matched by 6 of 99 realisations of the walk fitted to both: not beyond, but under 10 %): the
+    finding stays rate_random_walk and carries the warm-up as what one run cannot tell from it, with
+    its parameters, the fraction of draws and what separates them, in the JSON, the text and the
+    report. The same walk without the warm-up carries nothing (docs/diagnose.md, 6b and Output)."""
+    result = diagnose(_walk_and_warmup(0.02).dataset)
+    walk = [f for f in result.findings if f.effect == "rate_random_walk" and f.axis == "x"]
+    assert walk and not [f for f in result.findings if f.effect == "warmup_transient"], result.findings
+    alt = walk[0].evidence.get("alternative")
+    assert alt is not None and alt["effect"] == "warmup_transient", walk[0].evidence
+    assert 0.01 < alt["params"]["amplitude_dps"] < 0.04 and 100 < alt["params"]["tau_s"] < 900, alt
+    assert alt["draws_as_large"] < 10 and alt["draws"] == 99 and alt["fraction_as_large"] < 0.1, alt
+    assert "second run" in alt["separated_by"] and "temperature channel" in alt["separated_by"]
+    doc = [f for f in result.json["findings"] if f["effect"] == "rate_random_walk"][0]
+    assert doc["evidence"]["alternative"]["effect"] == "warmup_transient"
+    line = result.noise_line("x")
+    assert "cannot tell rate_random_walk from warmup_transient" in line and f"{alt['draws_as_large']} of 99" in line
+    assert line in "\n".join(result.summary_lines())
+    ds = _walk_and_warmup(0.02).dataset
+    html = write_report(result, ds, tmp_path / "r.html").read_text()
+    assert "cannot tell rate_random_walk from warmup_transient" in html
+    clean = diagnose(_walk_and_warmup(0.0).dataset)
+    assert [(f.effect, f.axis) for f in clean.findings] == [("rate_random_walk", "x")], clean.findings
+    assert not any("alternative" in f.evidence for f in clean.findings), [f.evidence for f in clean.findings]
+    assert "cannot tell" not in "\n".join(clean.summary_lines())
 
 
 def test_a_noise_model_realisation_has_the_model_s_statistics():

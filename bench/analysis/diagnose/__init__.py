@@ -78,7 +78,8 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     # slow structure in time larger than the noise model fitted to it makes is structure: decided on
     # the unwhitened fits and kept through the rounds (a whitener with the slow part in it hides it)
     white_left = frozenset(u["axis"] for u in ow.unexplained)
-    structure = {} if hidden & set(nm.KINDS) else nm.beyond_noise(p, white, resid, white_left, hidden)
+    alternatives: dict[str, Any] = {}  # a named slow shape one run cannot tell from the noise term
+    structure = {} if hidden & set(nm.KINDS) else nm.beyond_noise(p, white, resid, white_left, hidden, alternatives)
     models = nm.fit_models(p, resid, hidden, white_left, structure)
     # against a noise model the slow noise is the model's: no catch-all random walk in the search
     search_hidden = hidden | {"rate_random_walk"}
@@ -107,7 +108,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         models = again
         if stable:
             break
-    noise = nm.findings(p, models, resid, ow.unexplained, hidden)
+    noise = nm.findings(p, models, resid, ow.unexplained, hidden, alternatives)
     return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid, noise))
 
 

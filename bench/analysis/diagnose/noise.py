@@ -89,7 +89,7 @@ UNEVEN_P = 0.05
 
 
 def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], axes: frozenset[str],
-                 hidden: frozenset[str] = frozenset()) -> dict[str, Any]:
+                 hidden: frozenset[str] = frozenset(), alternatives: dict[str, Any] | None = None) -> dict[str, Any]:
     """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
     not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, tests at 5 % and
     1 % (2 % for the two statistics below together), about 0.1 % together for a random walk (they are
@@ -116,12 +116,16 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
 
     ``docs/diagnose.md``, 6b "Larger than the model makes". The decision is made on the unwhitened
     fits and kept through the whitened rounds: a whitener with the slow part in it hides the structure
-    it is asked about."""
+    it is asked about.
+
+    ``alternatives`` (filled when given): axis -> the best named slow shape on an axis that is *not*
+    beyond, when fewer than :data:`ALTERNATIVE_FRACTION` of the realisations make a shape as large
+    (:func:`slow_alternative`): what one run cannot tell from the noise term the axis will be named."""
     from bench.analysis.diagnose.openworld import probe_term
 
     def stats(q: Prepared, need: list[bool]) -> list[float]:
-        """(time probe ΔIC, best named shape ΔIC, segment levels' ΔIC − time probe's) on ``q``'s axis
-        ``a``; NaN where not ``need``ed."""
+        """The :data:`STATISTICS` on ``q``'s axis ``a`` (time probe ΔIC, best named shape ΔIC, segment
+        levels' ΔIC − time probe's; more negative: larger structure); NaN where not ``need``ed."""
         state = build_state(q, terms)
         hit = probe_term(q, state, "probe:time", a) if need[0] or need[2] else None
         t = float(hit[1].d_ic) if hit is not None else 0.0
@@ -158,28 +162,48 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
                 out[a] = {"statistic": STATISTICS[i], "d_ic": observed[i],
                           "d_ic_draws_min": min(d[i] for d in draws), "model": m.describe(),
                           "uneven_chi2": lr, "uneven_p": p_uneven}
+            elif alternatives is not None and observed[1] < 0:
+                shapes = [d[1] for d in draws]
+                matched = _shapes_as_large(p, a, fitted, m, shapes, lambda q: stats(q, [False, True, False])[1], observed[1])
+                p.gyro = saved_g
+                if matched < ALTERNATIVE_MATCHES:
+                    alt = slow_alternative(p, terms, a, hidden)
+                    if alt is not None:
+                        alternatives[a] = {**alt, "draws_as_large": matched, "draws": GOF_DRAWS,
+                                           "noise_model": m.describe(), "uneven_p": p_uneven}
     finally:
         p.whiten, p.gyro = saved_w, saved_g
     return out
 
 
-def shape_d_ic(p: Prepared, state: Any, a: str, hidden: frozenset[str] = frozenset()) -> float:
-    """The best (most negative) ΔIC on axis ``a`` of ``state`` of the slow named shapes: each
-    "time"-family candidate of the vocabulary not in ``hidden`` (warm-up, thermal lag, pressure bias,
-    hysteresis, bias step), searched over its own grid; 0 when none applies."""
+ALTERNATIVE_MATCHES = 10
+"""A named slow shape is reported as what one run cannot tell from a slow noise term when fewer than
+this many of the :data:`GOF_DRAWS` realisations make a shape as large (fewer than 10 %): the draws
+go on, for that statistic alone, until this many have matched."""
+ALTERNATIVE_FRACTION = ALTERNATIVE_MATCHES / (GOF_DRAWS + 1)
+SEPARATED_BY = ("a second run: a warm-up, a thermal lag or a hysteresis repeats at each power-on or "
+                "temperature cycle, a random walk does not; or a temperature channel that follows it")
+"""What separates a named slow shape from a slow noise term when one run cannot."""
+
+
+def best_shape(p: Prepared, state: Any, a: str, hidden: frozenset[str] = frozenset()) -> Any:
+    """The best (most negative ΔIC) evaluation on axis ``a`` of ``state`` of the slow named shapes:
+    each "time"-family candidate of the vocabulary not in ``hidden`` (warm-up, thermal lag, pressure
+    bias, hysteresis, bias step), searched over its own grid; None when none applies or none has a
+    negative ΔIC."""
     from bench.analysis.diagnose.engine import evaluate
     from bench.analysis.diagnose.terms import CANDIDATES
 
     ctx = state.context()
-    best = 0.0
+    best = None
     for c in CANDIDATES.values():
         if c.family != "time" or c.noise_term or c.name in hidden or c.missing(p):
             continue
         if a not in c.candidate_axes(p) or c.not_excited(p, a):
             continue
         e = evaluate(p, state, c, a, ctx)
-        if e is not None:
-            best = min(best, float(e.d_ic))
+        if e is not None and e.d_ic < (best.d_ic if best is not None else 0.0):
+            best = e
     return best
 
 
@@ -245,6 +269,55 @@ class SegmentLevels(Probe):
     def build(self, p, axis, nl, ctx):
         z = (self.labels[:, None] == np.arange(1, int(self.labels.max()) + 1)[None, :]).astype(float)
         return Built(cols={axis: z})
+
+
+def shape_d_ic(p: Prepared, state: Any, a: str, hidden: frozenset[str] = frozenset()) -> float:
+    """The ΔIC of :func:`best_shape`; 0 when none applies."""
+    e = best_shape(p, state, a, hidden)
+    return float(e.d_ic) if e is not None else 0.0
+
+
+def _shapes_as_large(p: Prepared, a: str, fitted: np.ndarray, m: NoiseModel, shapes: list[float],
+                     shape: Any, observed: float) -> int:
+    """How many of the :data:`GOF_DRAWS` realisations (the same fixed-seed series as
+    :func:`beyond_noise`'s, replayed) have a best named shape as large as ``observed``, counted up to
+    :data:`ALTERNATIVE_MATCHES`: ``shapes`` are those already computed (NaN: not), ``shape(p)`` computes
+    one on ``p`` with axis ``a`` replaced. Leaves ``p.gyro`` changed (the caller restores it)."""
+    saved_g = p.gyro
+    rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
+    matched = 0
+    for k in range(GOF_DRAWS):
+        x = realisation(m, fitted.size, rng)
+        v = shapes[k] if k < len(shapes) else math.nan
+        if math.isnan(v):
+            p.gyro = {**saved_g, a: fitted + x}
+            v = shape(p)
+        matched += int(v <= observed)
+        if matched >= ALTERNATIVE_MATCHES:
+            break
+    return matched
+
+
+def slow_alternative(p: Prepared, terms: list[Term], a: str, hidden: frozenset[str] = frozenset()) -> dict[str, Any] | None:
+    """The best named slow shape on axis ``a`` (:func:`best_shape` on the unwhitened fits of ``terms``)
+    with its physical parameters: {effect, params, describe, d_ic}; None when there is none."""
+    from bench.analysis.diagnose.terms import CANDIDATES
+
+    state = build_state(p, terms)
+    e = best_shape(p, state, a, hidden)
+    if e is None:
+        return None
+    c = CANDIDATES[e.cand.name]
+    term = Term(c.name, a, dict(e.nl_full), c.build(p, a, e.nl_full, state.context()))
+    after = build_state(p, terms + [term])
+    if c.name == "thermal_lag":
+        from bench.analysis.diagnose import _temp_coefs
+
+        coef = {x: _temp_coefs(after, x) for x in term.built.axes}
+    else:
+        coef = {x: after.axes[x].coef(len(terms)) for x in term.built.axes}
+    params = c.params(p, a, term.nl, coef)
+    return {"effect": c.name, "params": params, "describe": c.describe(params), "d_ic": float(e.d_ic)}
 
 
 def _full_model(p: Prepared, a: str, r: np.ndarray) -> NoiseModel:
@@ -355,8 +428,12 @@ def same_structure(old: dict[str, NoiseModel], new: dict[str, NoiseModel]) -> bo
 
 
 def findings(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.ndarray],
-             unexplained: list[dict[str, Any]], hidden: frozenset[str] = frozenset()) -> list[Finding]:
-    """The noise terms named on each axis with nothing unexplained (module docstring)."""
+             unexplained: list[dict[str, Any]], hidden: frozenset[str] = frozenset(),
+             alternatives: dict[str, Any] | None = None) -> list[Finding]:
+    """The noise terms named on each axis with nothing unexplained (module docstring). A slow one
+    (flicker, a random walk, a Gauss-Markov term of ≥ :data:`SLOW_SAMPLES` samples) on an axis of
+    ``alternatives`` (:func:`beyond_noise`) carries ``evidence["alternative"]``: the named slow shape
+    one run cannot tell from it (:func:`alternative_evidence`). An annotation, never a name."""
     left = {u["axis"] for u in unexplained}
     out: list[Finding] = []
     for a, m in models.items():
@@ -365,16 +442,31 @@ def findings(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.nda
         before = float(np.sqrt(np.mean((resid[a] - resid[a].mean()) ** 2)))
         after = math.sqrt(m.whitener().innovation_var)
         ev = {"noise_model": m.describe(), "d_bic": [s["d_bic"] for s in m.steps if s["accepted"]]}
+        slow = dict(ev)
+        if alternatives and a in alternatives:
+            slow["alternative"] = alternative_evidence(alternatives[a])
         if m.flicker_b > 0 and "bias_instability" not in hidden:
             lo, hi = _flicker_taus(m)
             out.append(Finding("bias_instability", a, {"b_dps": m.flicker_b, "tau_min_s": lo, "tau_max_s": hi},
-                               before, after, dict(ev)))
+                               before, after, dict(slow)))
         if m.rrw_k > 0 and "rate_random_walk" not in hidden:
-            out.append(Finding("rate_random_walk", a, {"k_dps_per_sqrt_s": m.rrw_k}, before, after, dict(ev)))
+            out.append(Finding("rate_random_walk", a, {"k_dps_per_sqrt_s": m.rrw_k}, before, after, dict(slow)))
         if "gauss_markov" not in hidden:
             for sigma, tau in m.gm:
-                out.append(Finding("gauss_markov", a, {"sigma_dps": sigma, "tau_s": tau}, before, after, dict(ev)))
+                out.append(Finding("gauss_markov", a, {"sigma_dps": sigma, "tau_s": tau}, before, after,
+                                   dict(slow if tau >= SLOW_SAMPLES * m.dt_s else ev)))
     return out
+
+
+def alternative_evidence(alt: dict[str, Any]) -> dict[str, Any]:
+    """The ``alternative`` entry of a slow noise finding's evidence (``docs/diagnose.md``, Output):
+    the named shape (``effect``, ``params`` in the effect's units: deg/s, s), its ΔIC on the data,
+    the fraction of the noise model's realisations whose best named shape is as large, and what
+    separates the two."""
+    return {"effect": alt["effect"], "params": alt["params"], "describe": alt["describe"], "d_ic": alt["d_ic"],
+            "draws_as_large": alt["draws_as_large"], "draws": alt["draws"],
+            "fraction_as_large": alt["draws_as_large"] / alt["draws"],
+            "separated_by": SEPARATED_BY}
 
 
 def _flicker_taus(m: NoiseModel) -> tuple[float, float]:

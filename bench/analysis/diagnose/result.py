@@ -165,6 +165,11 @@ class DiagnoseResult:
                 parts.append(f"{label} {v:.3g} {unit} (τ {how.get('tau_s', float('nan')):.3g} s{est})")
         if parts:
             text += "; Allan read-out: " + ", ".join(parts)
+        for f in self.findings:
+            alt = f.evidence.get("alternative") if f.axis == axis else None
+            if alt:
+                text += "; " + alternative_text(f.effect, alt)
+                break
         return text
 
     def unexplained_line(self, u: dict[str, Any]) -> str:
@@ -216,6 +221,13 @@ class DiagnoseResult:
         return _plain(out)
 
 
+def alternative_text(effect: str, alt: dict[str, Any]) -> str:
+    """The sentence for a slow noise finding's ``alternative`` (``noise.alternative_evidence``)."""
+    return (f"one run cannot tell {effect} from {alt['effect']} ({alt['describe']}; ΔIC {alt['d_ic']:+.0f}): only "
+            f"{alt['draws_as_large']} of {alt['draws']} realisations of the noise model make a named slow shape as "
+            f"large; what separates them: {alt['separated_by']}")
+
+
 def _band_text(findings: list[Finding]) -> str:
     bands = [f.gain_band for f in findings if math.isfinite(f.gain_band)]
     return f", {max(bands):.2f}x on block means" if bands else ""
@@ -227,7 +239,7 @@ def _num(v: float) -> float | None:
 
 def _evidence(ev: dict[str, Any]) -> dict[str, Any]:
     keep = ("d_ic", "phi", "t", "d_ic_given_probe", "allan_excess_slope", "allan_tau_range_s", "increment_kurtosis",
-            "fitted_scale", "gain_heldout", "fitted_on", "noise_model", "d_bic", "tau_s_interval")
+            "fitted_scale", "gain_heldout", "fitted_on", "noise_model", "d_bic", "tau_s_interval", "alternative")
     return {k: ev[k] for k in keep if k in ev}
 
 
