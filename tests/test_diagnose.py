@@ -400,10 +400,10 @@ def test_the_named_slow_shape_statistic_uses_only_the_unhidden_vocabulary():
     assert shape_d_ic(p, state, "y") == 0.0  # nothing slow on y
 
 
-def _walk_and_warmup(amplitude_dps: float):
+def _walk_and_warmup(amplitude_dps: float, seed: int = 2):
     """A 1-h session at 1 Hz, a random walk K 1.5e-4 deg/s/√s on x and a warm-up of ``amplitude_dps``,
     τ 300 s, on the same axis (0: none)."""
-    rng = np.random.default_rng([2, 32])
+    rng = np.random.default_rng([seed, 32])
     base = BaselineSensor.random(rng, 1.0)
     eff = [{"effect": "rate_random_walk", "axis": "x", "params": {"k_dps_per_sqrt_s": 1.5e-4}}]
     if amplitude_dps:
@@ -411,12 +411,14 @@ def _walk_and_warmup(amplitude_dps: float):
     return make_session(3600.0, 1.0, eff, seed=int(rng.integers(2**31)), mount="z", base=base)
 
 
-def test_a_walk_one_run_cannot_tell_from_a_warm_up_says_so(tmp_path):
+def test_a_walk_one_run_cannot_tell_from_a_warm_up_says_so(tmp_path, monkeypatch):
     """A warm-up of 0.02 deg/s (τ 300 s) on a random walk's axis comes out the walk (its shape is
     matched by 6 of 99 realisations of the walk fitted to both: not beyond, but under 10 %): the
     finding stays rate_random_walk and carries the warm-up as what one run cannot tell from it, with
     its parameters, the fraction of draws and what separates them, in the JSON, the text and the
-    report. The same walk without the warm-up carries nothing (docs/diagnose.md, 6b and Output)."""
+    report. A walk without a warm-up whose slow part is uneven (so its shapes are counted on the
+    draws: seed 10, 10 of the draws as large) carries nothing (docs/diagnose.md, 6b and Output)."""
+    from bench.analysis.diagnose import noise as nm
     result = diagnose(_walk_and_warmup(0.02).dataset)
     walk = [f for f in result.findings if f.effect == "rate_random_walk" and f.axis == "x"]
     assert walk and not [f for f in result.findings if f.effect == "warmup_transient"], result.findings
@@ -433,7 +435,11 @@ def test_a_walk_one_run_cannot_tell_from_a_warm_up_says_so(tmp_path):
     ds = _walk_and_warmup(0.02).dataset
     html = write_report(result, ds, tmp_path / "r.html").read_text()
     assert "cannot tell rate_random_walk from warmup_transient" in html
-    clean = diagnose(_walk_and_warmup(0.0).dataset)
+    counted: list[int] = []
+    count = nm._shapes_as_large
+    monkeypatch.setattr(nm, "_shapes_as_large", lambda *a, **k: counted.append(count(*a, **k)) or counted[-1])
+    clean = diagnose(_walk_and_warmup(0.0, seed=10).dataset)
+    assert counted and counted[0] >= nm.ALTERNATIVE_MATCHES, counted  # the draws were counted, and matched
     assert [(f.effect, f.axis) for f in clean.findings] == [("rate_random_walk", "x")], clean.findings
     assert not any("alternative" in f.evidence for f in clean.findings), [f.evidence for f in clean.findings]
     assert "cannot tell" not in "\n".join(clean.summary_lines())
