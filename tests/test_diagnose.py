@@ -678,13 +678,7 @@ def test_more_clean_sessions(seed):
     check_exact([], _seed("clean", 1, seed))
 
 
-PAIR_10HZ_MISSES = {
-    ("rate_random_walk", "earth_rate"): "the Earth rate is named (it is searched again against the noise model since "
-                                        "1a5d970); the random walk's axis y is left unexplained (pressure ΔIC -86, time "
-                                        "-61, spectral-line probe) instead of named rate_random_walk. With the line test "
-                                        "also on the spectral-line probe both are named (K within 1 %), but a hidden "
-                                        "Earth rate (CI earth_rate-0) then names gauss_markov:y",
-}
+PAIR_10HZ_MISSES: dict[tuple[str, str], str] = {}
 """Slow 10-Hz pairs that still fail, each with what happens (strict xfail)."""
 
 

@@ -894,12 +894,13 @@ class RateScaleProbe(Probe):
 
 
 class SpectrumProbe(Periodic):
-    """A spectral line: a sinusoid at the residual's highest periodogram peaks."""
+    """A spectral line: a sinusoid at the residual's highest periodogram peaks that are lines against
+    its continuum (:func:`line_peaks`, as for ``periodic``): a crest of a red continuum (a random
+    walk's few slow cycles) is the time probe's to find, not a line's."""
 
     name = "probe:spectrum"
     where = "a spectral line"
     family = None
-    LINE_TEST = False  # a detector of what is left: the highest peaks, lines or crests of a continuum
 
 
 class SpecificForceProbe(Probe):
