@@ -222,12 +222,8 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             for a in p.axes}
     findings = []
     for term, before, after in s.sequence:
-        cand = CANDIDATES[term.effect]
         touched = term.built.axes
-        coef = {a: after.axes[a].coef(len(before.terms)) for a in touched}
-        if term.effect == "thermal_lag":
-            coef = {a: _temp_coefs(after, a) for a in touched}
-        params = cand.params(p, term.axis, term.nl, coef)
+        params = term_params(p, term, after, len(before.terms))
         ev = dict(term.evidence)
         if term.effect == "earth_rate":
             num = sum(float(np.dot(before.axes[a].resid(), term.built.offsets[a])) for a in touched)
@@ -287,6 +283,18 @@ def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:
 
     return band_gain({a: before.axes[a].fit.sum_block for a in axes},
                      {a: after.axes[a].fit.sum_block for a in axes}, p.blocks)[0]
+
+
+def term_params(p: Prepared, term: Term, after: Any, index: int) -> dict[str, Any]:
+    """The physical parameters (the effect's units: deg/s, s, ...) of ``term``, fitted as column block
+    ``index`` of the state ``after`` that holds it; a thermal lag's from the baseline's temperature
+    coefficients it acts on."""
+    touched = term.built.axes
+    if term.effect == "thermal_lag":
+        coef = {a: _temp_coefs(after, a) for a in touched}
+    else:
+        coef = {a: after.axes[a].coef(index) for a in touched}
+    return CANDIDATES[term.effect].params(p, term.axis, term.nl, coef)
 
 
 def _temp_coefs(state: Any, a: str) -> np.ndarray:

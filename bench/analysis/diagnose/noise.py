@@ -119,7 +119,7 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     it is asked about.
 
     ``alternatives`` (filled when given): axis -> the best named slow shape on an axis that is *not*
-    beyond, when fewer than :data:`ALTERNATIVE_FRACTION` of the realisations make a shape as large
+    beyond, when fewer than :data:`ALTERNATIVE_MATCHES` of the realisations make a shape as large
     (:func:`slow_alternative`): what one run cannot tell from the noise term the axis will be named."""
     from bench.analysis.diagnose.openworld import probe_term
 
@@ -180,7 +180,6 @@ ALTERNATIVE_MATCHES = 10
 """A named slow shape is reported as what one run cannot tell from a slow noise term when fewer than
 this many of the :data:`GOF_DRAWS` realisations make a shape as large (fewer than 10 %): the draws
 go on, for that statistic alone, until this many have matched."""
-ALTERNATIVE_FRACTION = ALTERNATIVE_MATCHES / (GOF_DRAWS + 1)
 SEPARATED_BY = ("a second run: a warm-up, a thermal lag or a hysteresis repeats at each power-on or "
                 "temperature cycle, a random walk does not; or a temperature channel that follows it")
 """What separates a named slow shape from a slow noise term when one run cannot."""
@@ -308,15 +307,10 @@ def slow_alternative(p: Prepared, terms: list[Term], a: str, hidden: frozenset[s
     if e is None:
         return None
     c = CANDIDATES[e.cand.name]
-    term = Term(c.name, a, dict(e.nl_full), c.build(p, a, e.nl_full, state.context()))
-    after = build_state(p, terms + [term])
-    if c.name == "thermal_lag":
-        from bench.analysis.diagnose import _temp_coefs
+    from bench.analysis.diagnose import term_params
 
-        coef = {x: _temp_coefs(after, x) for x in term.built.axes}
-    else:
-        coef = {x: after.axes[x].coef(len(terms)) for x in term.built.axes}
-    params = c.params(p, a, term.nl, coef)
+    term = Term(c.name, a, dict(e.nl_full), c.build(p, a, e.nl_full, state.context()))
+    params = term_params(p, term, build_state(p, terms + [term]), len(terms))
     return {"effect": c.name, "params": params, "describe": c.describe(params), "d_ic": float(e.d_ic)}
 
 
