@@ -212,6 +212,14 @@ class _Run:
     U: np.ndarray
     model: Any
     whitener: Any
+    bin_rows: int = 1
+
+    def refitted(self, noise: np.ndarray) -> "_Run":
+        """This run with its noise model fitted anew on ``noise`` (deg/s; e.g. the residual less a warm-up)."""
+        from bench.analysis.noise_model import fit_noise_model
+
+        m = fit_noise_model(noise, float(np.median(np.diff(self.t))), self.bin_rows)
+        return _Run(self.t_on, self.t, self.resid, self.U, m, None if m.is_white else m.whitener(), self.bin_rows)
 
     def white(self, x: np.ndarray) -> np.ndarray:
         """``x`` prewhitened by the run's noise model (as it is: a white model has no whitener)."""
@@ -240,7 +248,7 @@ def _run_axis(r: DiagnoseResult, a: str) -> _Run:
     U = U[:, sv > sv[0] * 1e-10]
     resid = st.y - U @ (U.T @ st.y)
     m = fit_noise_model(resid if noise is None else noise, 1.0 / p.fs, p.bin_rows)
-    return _Run(np.asarray(p.power_on, float), p.t, resid, U, m, None if m.is_white else m.whitener())
+    return _Run(np.asarray(p.power_on, float), p.t, resid, U, m, None if m.is_white else m.whitener(), p.bin_rows)
 
 
 def windows(starts: list[float], ends: list[float]) -> np.ndarray:
@@ -357,21 +365,9 @@ def replication(runs: list[DiagnoseResult], taking: list[int], a: str, hidden: f
     if span < SPAN_MIN_S:
         return {**entry, "asked": False, "reason": f"the runs share {span:.0f} s since power-on (fewer than {SPAN_MIN_S:g} s)"}
     designs = [_design(r, edges) for r in rs]
-    ys = [r.white(r.resid) for r in rs]
     entry["curve_rms_dps"] = [_curve_rms(r, edges) for r in rs]
-    obs, obs_dic = agreement(ys, designs)
-    fs = 1.0 / float(np.median(np.diff(rs[0].t)))
-    taus = tau_grid(span, fs)
-    warm = "warmup_transient" not in hidden
-    jw = JointWarmup(rs, designs, taus) if warm else None
-    w_obs = jw.d_ic(ys)[0] if jw is not None else None
-    rngs = [np.random.default_rng([nm.GOF_SEED, "xyz".index(a), k]) for k in range(len(rs))]
-    draws, wdraws = [], []
-    for _ in range(nm.GOF_DRAWS):
-        yd = [r.white(r.project(nm.realisation(r.model, r.resid.size, g))) for r, g in zip(rs, rngs)]
-        draws.append(agreement(yd, designs)[0])
-        if warm:
-            wdraws.append(float(jw.d_ic(yd)[0].min()))
+    obs, obs_dic = agreement([r.white(r.resid) for r in rs], designs)
+    draws = _draws(rs, designs, a)[0]
     d = np.array([v for v in draws if math.isfinite(v)])
     as_large = int(np.sum(d >= obs)) if math.isfinite(obs) else nm.GOF_DRAWS
     entry.update({"asked": True, "windows_s": [float(v) for v in edges], "span_s": span, "agreement": obs,
@@ -380,31 +376,65 @@ def replication(runs: list[DiagnoseResult], taking: list[int], a: str, hidden: f
                   "noise_models": [r.model.describe() for r in rs], "beyond": bool(math.isfinite(obs) and as_large == 0)})
     if not entry["beyond"]:
         return entry
-    if not warm:
+    if "warmup_transient" in hidden:
         return {**entry, "why_unnamed": "warmup_transient is hidden"}
-    k = int(np.argmin(w_obs))
+    entry.update(_shared_warmup(rs, edges, a, tau_grid(span, 1.0 / float(np.median(np.diff(rs[0].t))))))
+    if entry["warmup_draws_as_large"] == 0 and entry["one_sign"] and entry["explains"]:
+        entry["named"] = "warmup_transient"
+        return entry
+    why = (f"the joint warm-up is matched by {entry['warmup_draws_as_large']} of {nm.GOF_DRAWS} draws"
+           if entry["warmup_draws_as_large"] else
+           "the runs' warm-up amplitudes differ in sign" if not entry["one_sign"] else
+           f"a shared warm-up leaves agreement {entry['agreement_after_warmup']:.2f}, beyond every draw")
+    return {**entry, "why_unnamed": why}
+
+
+def _draws(rs: list[_Run], designs: list[tuple[np.ndarray, np.ndarray]], a: str,
+           jw: "JointWarmup | None" = None) -> tuple[list[float], list[float]]:
+    """On :data:`~bench.analysis.diagnose.noise.GOF_DRAWS` fixed-seed draws (each run's residual replaced
+    by a realisation of its noise model, its deterministic fit projected out): the agreement, and
+    with ``jw`` the joint warm-up's best ΔIC."""
+    rngs = [np.random.default_rng([nm.GOF_SEED, "xyz".index(a), k]) for k in range(len(rs))]
+    agree, warm = [], []
+    for _ in range(nm.GOF_DRAWS):
+        yd = [r.white(r.project(nm.realisation(r.model, r.resid.size, g))) for r, g in zip(rs, rngs)]
+        agree.append(agreement(yd, designs)[0])
+        if jw is not None:
+            warm.append(float(jw.d_ic(yd)[0].min()))
+    return agree, warm
+
+
+def _shared_warmup(rs: list[_Run], edges: np.ndarray, a: str, taus: np.ndarray) -> dict[str, Any]:
+    """The warm-up of one τ shared by the runs (an amplitude each) and how it is judged: fitted on the
+    residuals whitened by the runs' models; then each run's noise model fitted anew on its residual
+    less that warm-up (the slow power the warm-up had lent it), and against those models the joint
+    ΔIC compared with the draws' (``warmup_draws_as_large``), the τ interval (χ² profile), and the
+    agreement left once the warm-up is taken out (``explains``: some draw reaches it)."""
+    designs = [_design(r, edges) for r in rs]
+    ys = [r.white(r.resid) for r in rs]
+    k = int(np.argmin(JointWarmup(rs, designs, taus).d_ic(ys)[0]))
     fine = np.geomspace(taus[max(k - 1, 0)], taus[min(k + 1, taus.size - 1)], 17)
+    f_ic, f_amps = JointWarmup(rs, designs, fine).d_ic(ys)
+    tau0, amps0 = float(fine[int(np.argmin(f_ic))]), f_amps[int(np.argmin(f_ic))]
+    rs = [r.refitted(r.resid - A * r.project(np.exp(-np.clip(r.t_on, 0.0, None) / tau0))) for r, A in zip(rs, amps0)]
+    designs = [_design(r, edges) for r in rs]
+    ys = [r.white(r.resid) for r in rs]
     f_ic, f_amps = JointWarmup(rs, designs, fine).d_ic(ys)
     j = int(np.argmin(f_ic))
     tau, amps, best = float(fine[j]), [float(v) for v in f_amps[j]], float(f_ic[j])
     wide = np.geomspace(max(tau / 4.0, taus[0]), min(tau * 4.0, taus[-1]), 57)
     prof = JointWarmup(rs, designs, wide).d_ic(ys)[0]
     ok = np.append(wide[(prof - best) <= TAU_CHI2], tau)
-    w_large = int(np.sum(np.array(wdraws) <= best))
+    agree, warm = _draws(rs, designs, a, JointWarmup(rs, designs, taus))
     left = [y - A * e for y, A, e in zip(ys, amps, _warm_cols(rs, tau))]
     left_agree = agreement(left, designs)[0]
-    explains = not (math.isfinite(left_agree) and left_agree > entry["agreement_draws_max"])
-    one_sign = all(v > 0 for v in amps) or all(v < 0 for v in amps)
-    entry.update({"warmup_d_ic": best, "warmup_draws_as_large": w_large, "warmup_d_ic_draws_min": float(min(wdraws)),
-                  "tau_s": tau, "tau_s_interval": [float(ok.min()), float(ok.max())],
-                  "amplitudes_dps": amps, "agreement_after_warmup": left_agree})
-    if w_large == 0 and one_sign and explains:
-        entry["named"] = "warmup_transient"
-        return entry
-    why = ("the joint warm-up is matched by " + f"{w_large} of {nm.GOF_DRAWS} draws" if w_large else
-           "the runs' warm-up amplitudes differ in sign" if not one_sign else
-           f"a shared warm-up leaves agreement {left_agree:.2f}, beyond every draw")
-    return {**entry, "why_unnamed": why}
+    finite = [v for v in agree if math.isfinite(v)]
+    return {"warmup_d_ic": best, "warmup_draws_as_large": int(np.sum(np.array(warm) <= best)),
+            "warmup_d_ic_draws_min": float(min(warm)), "tau_s": tau, "tau_s_interval": [float(ok.min()), float(ok.max())],
+            "amplitudes_dps": amps, "agreement_after_warmup": left_agree,
+            "noise_models_without_warmup": [r.model.describe() for r in rs],
+            "one_sign": bool(all(v > 0 for v in amps) or all(v < 0 for v in amps)),
+            "explains": bool(not math.isfinite(left_agree) or any(v >= left_agree for v in finite))}
 
 
 def _mark_unexplained(r: DiagnoseResult, e: dict[str, Any], rms: float) -> None:
