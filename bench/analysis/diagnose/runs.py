@@ -81,6 +81,8 @@ class RunsResult:
         for k, r in enumerate(self.runs, 1):
             lines.append(f"run {k}: {r.source}")
             lines += ["  " + ln for ln in r.summary_lines()]
+            if r.fixed_terms:
+                lines.append("  fixed from the runs together (τ given, amplitude refitted): " + ", ".join(r.fixed_terms))
         lines.append("across runs:")
         lines += ["  " + ln for ln in self.across_lines()]
         return lines
