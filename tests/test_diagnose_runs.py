@@ -220,10 +220,11 @@ def test_two_one_hour_walks_name_nothing_across_runs(seed):
     check_walks(seed, 3600.0, alone=False)
 
 
-def background_run(bg: str, names: list[str], seed: int, run: int):
+def background_run(bg: str, names: list[str], seed: int, run: int, noise_seed: int | None = None):
     """(session, injected): run ``run`` of tests/test_real_data_diagnose.py's ``in_background(bg, names,
     seed)`` unit: run 0 is that session; others the same unit and effect parameters in another
-    background hour (``background(bg, n, seed + run)``) with another session seed."""
+    background hour (``background(bg, n, noise_seed)``, by default one drawn from ``seed`` and ``run``)
+    with another session seed."""
     from tests.diagnose_shapes import background, extra, scale_against
     from tests.test_real_data_diagnose import hidden_effect
 
@@ -234,7 +235,9 @@ def background_run(bg: str, names: list[str], seed: int, run: int):
     sess = int(rng.integers(2**31))
     probe = make_session(3600.0, 1.0, [], seed=sess, mount=mount, base=base)
     entries = [hidden_effect(n, rng, mount, scale_against(bg), probe, base) for n in names]
-    noise = background(bg, 3600, seed if run == 0 else _seed("background", seed, run))
+    if noise_seed is None:
+        noise_seed = seed if run == 0 else _seed("background", seed, run)
+    noise = background(bg, 3600, noise_seed)
     return make_session(3600.0, 1.0, [], seed=sess if run == 0 else _seed("session", seed, run), mount=mount, base=base,
                         extra=extra(entries, noise)), entries
 
@@ -283,12 +286,13 @@ a warm-up never injected (``periodic`` seed 1), the wandering hour of
 @pytest.mark.slow
 @pytest.mark.parametrize("bg,first,second", REAL_PAIRS, ids=["-".join(map(str, (p[0],) + p[1][2:] + p[2][2:])) for p in REAL_PAIRS])
 def test_two_real_noise_hours_name_nothing_across_runs(real_log, bg, first, second):
-    """Two runs of one unit in two real background hours, nothing injected: no axis beyond across runs,
-    each run as alone."""
+    """Two runs of one unit (``first``'s) in two real background hours (``first``'s and ``second``'s),
+    nothing injected: no axis beyond across runs, each run as alone."""
     from tests.test_real_data_diagnose import _seed as real_seed
 
     _real(real_log, bg)
-    runs = [background_run(bg, [], real_seed(*first), 0)[0], background_run(bg, [], real_seed(*second), 0)[0]]
+    a, b = real_seed(*first), real_seed(*second)
+    runs = [background_run(bg, [], a, 0)[0], background_run(bg, [], a, 1, noise_seed=b)[0]]
     result = diagnose_runs([s.dataset for s in runs])
     asked = [e for e in result.across if e["asked"]]
     assert len(asked) == 3 and not any(e["beyond"] for e in asked), [(e["axis"], e["agreement"], e["draws_as_large"]) for e in asked]
