@@ -51,7 +51,9 @@ FIRST_WINDOW_S = 30.0
 SPAN_MIN_S = 240.0
 """The runs must share at least this much time since power-on (s) for the test to be asked."""
 TAU_CHI2 = 3.84
-"""χ²₁ at 95 %: the shared τ's interval is where the joint warm-up fit is within this of the best."""
+"""χ²₁ at 95 %: the shared τ's interval is where the joint warm-up fit is within this of the best,
+bounded by the first τ outside it on each side of a 57-point grid over τ/4 to 4τ (so never narrower
+than that grid's 5 % step)."""
 RCOND = 1e-9
 """Relative singular-value cut of the least-squares fits (columns the projection left as rounding)."""
 TEST = "repeats from power-on"
@@ -426,7 +428,9 @@ def _shared_warmup(rs: list[_Run], edges: np.ndarray, a: str, taus: np.ndarray) 
     tau, amps, best = float(fine[j]), [float(v) for v in f_amps[j]], float(f_ic[j])
     wide = np.geomspace(max(tau / 4.0, taus[0]), min(tau * 4.0, taus[-1]), 57)
     prof = JointWarmup(rs, designs, wide).d_ic(ys)[0]
-    ok = np.append(wide[(prof - best) <= TAU_CHI2], tau)
+    out = (prof - best) > TAU_CHI2  # the interval: bounded by the first grid τ excluded on each side
+    below, above = wide[(wide < tau) & out], wide[(wide > tau) & out]
+    ok = np.array([below.max() if below.size else wide[0], above.min() if above.size else wide[-1]])
     agree, warm = _draws(rs, designs, a, JointWarmup(rs, designs, taus))
     left = [y - A * e for y, A, e in zip(ys, amps, _warm_cols(rs, tau))]
     left_agree = agreement(left, designs)[0]
