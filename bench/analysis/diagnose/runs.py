@@ -8,8 +8,10 @@ asks per axis a **replication test tied to power-on**:
 * **What is compared.** Each run's slow residual: the residual of its own selected model (the
   unwhitened fits, as :func:`bench.analysis.diagnose.noise.beyond_noise` uses; a warm-up the run named
   on its own is left in, so that the runs are judged on it together), prewhitened by the noise model
-  fitted to it (:func:`bench.analysis.noise_model.fit_noise_model`), on windows of time since
-  power-on (:func:`windows`: 0-30 s, 30-60 s, then doubling, to the end of the span all runs share).
+  the run itself left (:func:`bench.analysis.noise_model.fit_noise_model` on its final residual),
+  against a curve in time since power-on, piecewise linear with knots at :func:`windows` (0, 30,
+  60 s, then doubling, to the end of the span all runs share), each run's deterministic fit
+  projected out of its columns.
 * **The statistic, shape-free.** The agreement ``(RSS₀ − RSS_shared) / (RSS₀ − RSS_own)``: the part of
   the gain of one level curve per run (over those windows, each run its own constant) that a single
   curve shared by the runs takes. Under independent runs (a walk, the phone's wander) it is about
