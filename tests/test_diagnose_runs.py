@@ -86,6 +86,14 @@ def check_named_across(duration_s: float) -> None:
     assert len(warm) == 1 and warm[0]["axis"] == a and warm[0]["params"]["tau_s"] == e["tau_s"], model["effects"]
     doc = result.json
     assert set(doc) == {"runs", "across_runs"} and len(doc["runs"]) == 2
+    import json
+
+    from bench.analysis.per_file import json_text
+
+    back = json.loads(json_text(doc))  # the --json text: plain values only
+    named = [x for x in back["across_runs"] if x.get("named")]
+    assert [(x["axis"], x["named"]) for x in named] == [(a, "warmup_transient")], back["across_runs"]
+    assert named[0]["amplitudes_dps"] == e["amplitudes_dps"] and back["runs"][0]["source"] == s1.dataset.source
     text = "\n".join(result.summary_lines())
     assert f"{a}: repeats from power-on" in text and "warmup_transient across runs" in text and "deg/s" in text
 
