@@ -88,20 +88,27 @@ def add_analysis_parsers(sub: argparse._SubParsersAction) -> None:
                     "structure left (docs/diagnose.md).",
         epilog=epilog("bench diagnose runs/20261123T101500Z_thermal_ramp_ambient.h5",
                       "bench diagnose data.csv --model configs/sensors/estcube_bmg160.yaml --json --report evidence.html -o extended.yaml",
+                      "bench diagnose monday.csv tuesday.csv --power-on-at 0,12.5",
                       ok="the diagnosis was made (whatever it found)", bad=data_bad))
-    d.add_argument("data", type=Path, help="run file (.h5), measured-data CSV, or HDF5/netCDF-4 file with --map")
+    d.add_argument("data", type=Path, nargs="+", metavar="DATA",
+                   help="run file (.h5), measured-data CSV, or HDF5/netCDF-4 file with --map; several files: runs of "
+                        "ONE unit, each from a power-on, diagnosed together (a warm-up repeats at each power-on, a "
+                        "random walk does not; docs/diagnose.md, \"Several runs of one unit\")")
     _add_map_option(d)
     d.add_argument("--model", type=Path, default=None,
                    help="sensor model YAML whose known terms join the baseline (configs/sensors/NAME.yaml or an earlier -o output; default: the baseline alone)")
-    d.add_argument("--power-on-at", type=_seconds, default=None, metavar="TIME",
+    d.add_argument("--power-on-at", action="append", default=None, metavar="TIME",
                    help="when the data have no power_on_s column: the time (s, on the data's time axis) the sensor was "
                         "powered on, at or before the first row (default: the # power_on_at_s metadata, else the "
-                        "warm-up is not searched)")
+                        "warm-up is not searched); with several files one value per file, in order (repeat the "
+                        "option or give a comma list; '-' for a file with its own column or metadata)")
     d.add_argument("--json", action="store_true", help="print the findings as JSON (default: a summary)")
     d.add_argument("--report", type=Path, default=None,
-                   help="write an HTML page with the evidence (default: none; an existing file only with --force)")
+                   help="write an HTML page with the evidence (default: none; an existing file only with --force; "
+                        "one data file only)")
     d.add_argument("-o", "--output", type=Path, default=None,
-                   help="write the extended sensor model YAML (default: none; an existing file only with --force)")
+                   help="write the extended sensor model YAML (default: none; an existing file only with --force; "
+                        "with several files: the first run's model with the warm-up found across runs)")
     add_force(d)
 
 
@@ -202,17 +209,38 @@ def cmd_report(args: argparse.Namespace, console: Console) -> int:
 
 def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
     from bench.analysis.diagnose import write_report
-    from bench.analysis.per_file import diagnose_file, json_text, rows_line
+    from bench.analysis.per_file import diagnose_file, diagnose_files, json_text, rows_line
     from bench.analysis.progress import Progress
 
+    files = list(args.data)
+    power_on = _power_on_values(args.power_on_at, len(files))
     for path, option in ((args.report, "--report"), (args.output, "-o")):
-        check_output(path, option, force=args.force, inputs=[args.data, args.model])
+        check_output(path, option, force=args.force, inputs=[*files, args.model])
     if args.report is not None and args.output is not None and args.report.resolve() == args.output.resolve():
         raise InputError("--report and -o name the same file; give two names", None, "-o")
+    if len(files) > 1 and args.report is not None:
+        raise InputError(f"--report is for one data file ({len(files)} given): diagnose each run alone for its "
+                         "report; the runs together give the summary, --json and -o", None, "--report")
     info = _info_console(args, console)
+    if len(files) > 1:
+        with Progress("diagnose") as say:
+            runs = diagnose_files(files, args.map, args.model, progress=say, on_note=_note_on_stderr, power_on_at=power_on)
+        if args.json:
+            print(json_text(runs.json))
+        else:
+            for line in runs.summary_lines():
+                console.print(line, markup=False, soft_wrap=True)
+        for k, r in enumerate(runs.runs, 1):
+            analysed = rows_line(r)
+            if analysed is not None:
+                info.print(f"run {k}: {analysed}", markup=False, soft_wrap=True)
+        if args.output is not None:
+            _write_yaml(args.output, runs.extended_model(), args.force)
+            info.print(f"extended model written to {args.output}", markup=False, soft_wrap=True)
+        return EXIT_OK
     with Progress("diagnose") as say:
-        result, ds = diagnose_file(args.data, args.map, args.model, progress=say, on_note=_note_on_stderr,
-                                   power_on_at=args.power_on_at)
+        result, ds = diagnose_file(files[0], args.map, args.model, progress=say, on_note=_note_on_stderr,
+                                   power_on_at=power_on[0])
     if args.json:
         print(json_text(result.json))
     else:
@@ -230,6 +258,28 @@ def cmd_diagnose(args: argparse.Namespace, console: Console) -> int:
         _write_yaml(args.output, result.extended_model(), args.force)
         info.print(f"extended model written to {args.output}", markup=False, soft_wrap=True)
     return EXIT_OK
+
+
+def _power_on_values(given: list[str] | None, files: int) -> list[float | None]:
+    """``--power-on-at`` as one value (s, or None for '-') per data file: repeated options and comma
+    lists flattened; the wrong number of values is bad input located at the option."""
+    if given is None:
+        return [None] * files
+    values: list[float | None] = []
+    for text in given:
+        for item in text.split(","):
+            item = item.strip()
+            if item == "-" and files > 1:
+                values.append(None)
+                continue
+            try:
+                values.append(_seconds(item))
+            except argparse.ArgumentTypeError as exc:
+                raise InputError(str(exc), None, "--power-on-at") from None
+    if len(values) != files:
+        raise InputError(f"{len(values)} value(s) for {files} data file(s); give one per file, in order "
+                         "(repeat the option or a comma list)", None, "--power-on-at")
+    return values
 
 
 def _info_console(args: argparse.Namespace, console: Console) -> Console:

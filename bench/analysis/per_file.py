@@ -5,6 +5,8 @@ the same functions, so a fleet's result for a file is the serial command's.
 * :func:`calibrate_file`: read the data (a run file, a measured-data CSV, a mapped foreign file or,
   for rate-transfer, a summary CSV) and run the method; a :class:`CalibrationResult`.
 * :func:`diagnose_file`: read the data and diagnose it; the result and the dataset (for the report).
+* :func:`diagnose_files`: several runs of one unit (``bench diagnose A B ...``): the
+  :class:`~bench.analysis.diagnose.runs.RunsResult`.
 * :func:`json_text`: the ``--json`` text of a result (numpy values as plain ones), byte for byte
   what the commands print.
 
@@ -24,6 +26,7 @@ from bench.errors import InputError
 if TYPE_CHECKING:
     from bench.analysis.dataset import Dataset
     from bench.analysis.diagnose import DiagnoseResult
+    from bench.analysis.diagnose.runs import RunsResult
     from bench.analysis.result import CalibrationResult
 
 METHODS: dict[str, tuple[str, str]] = {
@@ -110,6 +113,21 @@ def diagnose_file(data: Path, mapping: Sequence[str] | None = None, model: Path 
     ds = load_checked(Path(data), mapping, on_note=on_note)
     progress(f"{len(ds):,} rows read, preparing")
     return diagnose(ds, model_path=str(model) if model else None, progress=progress, power_on_at=power_on_at), ds
+
+
+def diagnose_files(data: Sequence[Path], mapping: Sequence[str] | None = None, model: Path | None = None,
+                   *, progress: Say = _quiet, on_note: Say = _quiet,
+                   power_on_at: Sequence[float | None] | None = None) -> "RunsResult":
+    """Diagnose several data files of ONE unit together (:func:`bench.analysis.diagnose.runs.diagnose_runs`):
+    each as :func:`diagnose_file` does, then the replication test tied to power-on across them.
+    ``power_on_at``: one power-on time (s) per file, or None."""
+    from bench.analysis.diagnose.runs import diagnose_runs
+
+    datasets = []
+    for path in data:
+        progress(f"reading {path}")
+        datasets.append(load_checked(Path(path), mapping, on_note=on_note))
+    return diagnose_runs(datasets, model_path=str(model) if model else None, progress=progress, power_on_at=power_on_at)
 
 
 def rows_line(result: "DiagnoseResult") -> str | None:

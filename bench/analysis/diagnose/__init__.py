@@ -58,11 +58,15 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
 
 
 def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = frozenset(),
-              progress: Any = None, power_on_at: float | None = None) -> DiagnoseResult:
+              progress: Any = None, power_on_at: float | None = None,
+              known: tuple[tuple[str, str, dict[str, Any]], ...] = ()) -> DiagnoseResult:
+    """:func:`diagnose` without its checks; ``known``: more (name, axis, nonlinear parameters) terms
+    fixed as the model file's are (``runs.py``: a warm-up shared by several runs)."""
     p = prepare(ds, power_on_at=power_on_at, fit_lines="periodic" not in hidden)
-    raw, spec_effects, model_terms = None, [], []
+    raw, spec_effects, model_terms = None, [], list(known)
     if model_path is not None:
         raw, spec_effects, model_terms = _load_model(model_path)
+        model_terms += list(known)
     base_terms = [Term("baseline", a, {}, baseline_built(p, a)) for a in p.axes]
     ctx = build_state(p, base_terms).context()
     fixed = []
