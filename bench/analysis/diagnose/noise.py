@@ -91,7 +91,7 @@ UNEVEN_P = 0.05
 
 def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], axes: frozenset[str],
                  hidden: frozenset[str] = frozenset(), alternatives: dict[str, Any] | None = None,
-                 slow_parts: dict[str, Any] | None = None) -> dict[str, Any]:
+                 slow_parts: dict[str, Any] | None = None, in_time: frozenset[str] = frozenset()) -> dict[str, Any]:
     """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
     not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, tests at 5 % and
     1 % (2 % for the two statistics below together), about 0.1 % together for a random walk (they are
@@ -125,13 +125,15 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     (:func:`slow_alternative`): what one run cannot tell from the noise term the axis will be named.
 
     **An axis whose model has no slow part** (:func:`has_slow_part`: the BIC took none) cannot take
-    slow structure for noise, so the probes keep what they find; when ``slow_parts`` is given, it is
-    asked once more, against the model with its best slow part
+    slow structure for noise, so the probes keep what they find; when ``slow_parts`` is given and the
+    axis is one of ``in_time`` (the white pass' best probe of its structure is time), it is asked once
+    more, against the model with its best slow part
     (:func:`bench.analysis.noise_model.with_slow_part`), every statistic asked whatever the
     unevenness, each to be matched by :data:`ASKED_MATCHES` realisations (it pays for the second
-    question). Matched: ``slow_parts[axis]`` gets the evidence and :func:`fit_models` gives the axis
-    that model (its slow term is named; nothing unexplained). Not matched: the axis is left as before
-    (not in the returned axes: the selected model is kept and the probes keep the structure)."""
+    question). ``slow_parts[axis]`` gets the evidence (``within``: every statistic matched; the
+    statistics, the draws run, how many matched each). Within: :func:`fit_models` gives the axis that
+    model (its slow term is named; nothing unexplained). Not: the axis is left as before (not in the
+    returned axes: the selected model is kept and the probes keep the structure)."""
     from bench.analysis.diagnose.openworld import probe_term
 
     def stats(q: Prepared, need: list[bool]) -> list[float]:
@@ -152,7 +154,7 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
             m = _full_model(p, a, resid[a])
             asked = not has_slow_part(m)
             if asked:  # the model takes no slow structure: asked again with its best slow part, or not
-                m = _slow_model(p, a, resid[a]) if slow_parts is not None else None
+                m = _slow_model(p, a, resid[a]) if slow_parts is not None and a in in_time else None
                 if m is None:
                     continue  # the probes keep what they find
             lr, p_uneven = stationarity_test(resid[a], m)
@@ -174,11 +176,12 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
                 if not any(beyond):
                     break  # each statistic matched: within the model
             p.gyro = saved_g
-            if asked and any(beyond):
-                continue  # beyond that model too: left as it was
             if asked:
-                slow_parts[a] = {"model": m.describe(), "d_ic": observed, "draws_run": len(draws),
-                                 "matched": matched, "need": need, "uneven_chi2": lr, "uneven_p": p_uneven}
+                slow_parts[a] = {"within": not any(beyond), "model": m.describe(), "d_ic": observed,
+                                 "draws_run": len(draws), "matched": matched, "need": need,
+                                 "uneven_chi2": lr, "uneven_p": p_uneven}
+                if any(beyond):
+                    continue  # beyond that model too: left as it was
             if any(beyond):
                 i = beyond.index(True)
                 out[a] = {"statistic": STATISTICS[i], "d_ic": observed[i],
@@ -422,7 +425,7 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
             out[a] = m
             continue
         m = _full_model(p, a, r)
-        if slow_parts and a in slow_parts and not has_slow_part(m):
+        if slow_parts and slow_parts.get(a, {}).get("within") and not has_slow_part(m):
             slow = _slow_model(p, a, r)
             if slow is not None:
                 ev = slow_parts[a]
