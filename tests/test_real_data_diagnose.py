@@ -238,9 +238,6 @@ REAL_NOISE_MISSES = {
                                    "as what one run cannot tell from the walk (6 of 99). The early slow increments "
                                    "(1 of 99) and the shape against the walk (-7.8, 0 of 99) separate it, but also "
                                    "give a wrong warmup_transient in the S5 periodic seed 1 case: not used",
-    ("s5", "scale_factor_tempco", 0): "y is left unexplained against time (ΔIC -41 unwhitened, -10 against the "
-                                      "Gauss-Markov model) next to the correctly named scale_factor_tempco: the phone's "
-                                      "wander, which y's model (no slow part) does not take",
 }
 """Sweep cases that still fail (misses, never a wrong name), each with what happens: strict xfail
 (docs/diagnose.md, known limits)."""

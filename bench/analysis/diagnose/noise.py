@@ -481,7 +481,9 @@ def findings(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.nda
     """The noise terms named on each axis with nothing unexplained (module docstring). A slow one
     (flicker, a random walk, a Gauss-Markov term of ≥ :data:`SLOW_SAMPLES` samples) on an axis of
     ``alternatives`` (:func:`beyond_noise`) carries ``evidence["alternative"]``: the named slow shape
-    one run cannot tell from it (:func:`alternative_evidence`). An annotation, never a name."""
+    one run cannot tell from it (:func:`alternative_evidence`). An annotation, never a name. A slow
+    one the BIC refused and :func:`fit_models` took when asked (``slow_parts``) carries
+    ``evidence["asked"]``: why (the structure in time, the draws that matched it)."""
     left = {u["axis"] for u in unexplained}
     out: list[Finding] = []
     for a, m in models.items():
@@ -491,6 +493,9 @@ def findings(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.nda
         after = math.sqrt(m.whitener().innovation_var)
         ev = {"noise_model": m.describe(), "d_bic": [s["d_bic"] for s in m.steps if s["accepted"]]}
         slow = dict(ev)
+        asked = [s["reason"] for s in m.steps if s.get("asked") and "reason" in s]
+        if asked:  # the slow part the BIC refused, taken because the probes' structure is within it
+            slow["asked"] = asked[-1]
         if alternatives and a in alternatives:
             slow["alternative"] = alternative_evidence(alternatives[a])
         if m.flicker_b > 0 and "bias_instability" not in hidden:
