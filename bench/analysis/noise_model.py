@@ -29,6 +29,8 @@ variances (log-parameters, L-BFGS-B) for a given set of components; components a
 the total at some observed frequency). Where a Gauss-Markov term of τ_c ≈ one sample makes the
 white part unidentifiable (its profile likelihood does not reject "no white part", :data:`WHITE_LR`),
 the white part is the likelihood-weighted mean along that ridge, with its 95 % interval.
+:func:`with_slow_part` gives a model without a slow part its best slow component whatever the BIC
+says: the model diagnose judges slow structure in time against when the selected one has none.
 
 **Whitening** (:class:`Whitener`): the steady-state Kalman filter of that state-space model turns r
 into its innovations, which are white with variance S_ε when the model is right; as a transfer
