@@ -13,7 +13,8 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from bench.analysis.noise_model import MATERIAL_SHARE, fit_noise_model, stationarity, white_profile
+from bench.analysis.noise_model import (MATERIAL_SHARE, SLOW_SAMPLES, fit_noise_model, stationarity, white_profile,
+                                       with_slow_part)
 from tests.conftest import run_cli
 
 
@@ -159,6 +160,27 @@ def test_a_large_slow_part_is_fitted_without_overflow(seed):
         for allow in (("flicker", "gm"), ("flicker", "rrw", "gm")):
             m = fit_noise_model(r, 1.0, allow=allow)
             assert not m.is_white and m.terms()["arw_deg_per_sqrt_h"] == pytest.approx(0.004 * 60.0, rel=0.3), m.describe()
+
+
+def test_a_slow_part_the_bic_refuses_is_fitted_when_asked():
+    """White noise, a Gauss-Markov hump of 2.5 s (the S5 phone's at 1 Hz) and a weak random walk: the
+    BIC takes the hump and not the walk (its ΔBIC above −10); asked, the model gets its best slow part
+    (flicker, a random walk or a Gauss-Markov term of ≥ 20 samples) beside the hump, a higher
+    likelihood, the step marked as asked; a model that already has a slow part is not given another."""
+    from bench.analysis.diagnose.noise import has_slow_part
+
+    rng = np.random.default_rng([1, 33])
+    n = 3600
+    r = rng.standard_normal(n) * 0.01 + _gm(rng, n, 0.02, 2.5) + np.cumsum(rng.standard_normal(n)) * 5e-5
+    m = fit_noise_model(r, 1.0)
+    assert not has_slow_part(m) and len(m.gm) == 1 and m.gm[0][1] == pytest.approx(2.5, rel=0.3), m.describe()
+    s = with_slow_part(r, m)
+    assert s is not None and has_slow_part(s), s
+    assert s.gm[0][1] == pytest.approx(m.gm[0][1], rel=0.2) and s.loglik > m.loglik, (m.describe(), s.describe())
+    step = s.steps[-1]
+    assert step["asked"] and step["accepted"] and step["d_bic"] > -10, step
+    assert step["component"] in ("flicker", "rrw") or step["tau_s"] >= SLOW_SAMPLES, step
+    assert m.steps == s.steps[:-1]  # the selected model is left as it was
 
 
 def test_a_step_is_not_stationary_noise_but_a_walk_is():

@@ -29,6 +29,8 @@ variances (log-parameters, L-BFGS-B) for a given set of components; components a
 the total at some observed frequency). Where a Gauss-Markov term of τ_c ≈ one sample makes the
 white part unidentifiable (its profile likelihood does not reject "no white part", :data:`WHITE_LR`),
 the white part is the likelihood-weighted mean along that ridge, with its 95 % interval.
+:func:`with_slow_part` gives a model without a slow part its best slow component whatever the BIC
+says: the model diagnose judges slow structure in time against when the selected one has none.
 
 **Whitening** (:class:`Whitener`): the steady-state Kalman filter of that state-space model turns r
 into its innovations, which are white with variance S_ε when the model is right; as a transfer
@@ -325,7 +327,6 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
     if n < 64 or var <= 0:
         return model
     b = _bands(r)
-    m = b.ordinates
     comps: list[tuple[str, float | None]] = [("white", None)]
     G = _basis("white", b.omega, dt_s, duration)[:, None]
     theta, ll = _fit(G, b, np.array([var]))
@@ -333,38 +334,10 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
     lo_tau, hi_tau = GM_MIN_SAMPLES * dt_s, GM_RESOLVED * duration
     if max_tau_s is not None:
         hi_tau = max(min(hi_tau, max_tau_s), 1.01 * lo_tau)
-    # the grid anchored at half a sample (GM_GRID_FROM), its points below the resolved range dropped
-    start = GM_GRID_FROM * dt_s
-    taus = np.geomspace(start, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / start)) + 1, 2))
-    taus = taus[taus >= lo_tau]
+    taus = _tau_grid(dt_s, lo_tau, hi_tau)
     while len(comps) - 1 < MAX_COMPONENTS:
-        best = None
-        tried = []
-        for kind in allow:
-            if kind in ("flicker", "rrw") and any(c[0] == kind for c in comps):
-                continue
-            options = [(kind, float(t)) for t in taus] if kind == "gm" else [(kind, None)]
-            for k_, tau in options:
-                if k_ == "gm" and any(c[0] == "gm" and abs(math.log(c[1] / tau)) < 0.5 for c in comps):
-                    continue
-                col = _basis(k_, b.omega, dt_s, duration, tau)
-                G2 = np.column_stack([G, col])
-                scale = float(np.median(b.mean_i / np.maximum(col, 1e-300)))
-                th, ll2 = _fit(G2, b, np.concatenate([theta, [max(0.1 * scale, 1e-300)]]))
-                k_params = 2 if k_ == "gm" else 1
-                d_bic = -2.0 * (ll2 - ll) + k_params * math.log(m)
-                share = float(np.max(th[-1] * col / np.maximum(G2 @ th, 1e-300)))
-                tried.append((d_bic, k_, tau, th, ll2, col, share))
-        for d_bic, k_, tau, th, ll2, col, share in sorted(tried, key=lambda x: x[0]):
-            if k_ == "gm" and not _resolved(tau, lo_tau, hi_tau):
-                continue  # a correlation time at an end of the grid is not resolved
-            if d_bic < -ic_min and share >= MATERIAL_SHARE:
-                if k_ == "gm":
-                    tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, lo_tau, hi_tau)
-                    if not _resolved(tau, lo_tau, hi_tau):
-                        continue  # the likelihood runs to an end of the grid once refined
-                best = (d_bic, k_, tau, th, ll2, col, share)
-                break
+        tried = _trials(G, b, theta, ll, comps, allow, taus, dt_s, duration)
+        best = _accept(tried, G, b, theta, dt_s, duration, lo_tau, hi_tau, ic_min)
         if best is None:
             if tried:
                 d_bic, k_, tau, *_ = min(tried, key=lambda x: x[0])
@@ -384,8 +357,24 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
             theta, ll, tau_k = prof.settle()
             if prof.k is not None:
                 comps[prof.k] = ("gm", tau_k)
+    return _settle(model, comps, theta, ll, WHITE_FLOOR * var)
+
+
+def _tau_grid(dt_s: float, lo_tau: float, hi_tau: float) -> np.ndarray:
+    """The Gauss-Markov correlation times tried (s): a grid anchored at half a sample
+    (:data:`GM_GRID_FROM`), :data:`GM_PER_DECADE` a decade up to ``hi_tau``, its points below
+    ``lo_tau`` dropped."""
+    start = GM_GRID_FROM * dt_s
+    taus = np.geomspace(start, hi_tau, max(int(GM_PER_DECADE * math.log10(hi_tau / start)) + 1, 2))
+    return taus[taus >= lo_tau]
+
+
+def _settle(model: NoiseModel, comps: list[tuple[str, float | None]], theta: np.ndarray, ll: float,
+            w_floor: float) -> NoiseModel:
+    """``model`` with the components ``comps`` (white first) at parameters ``theta``."""
     model.loglik = ll
-    model.white_var = max(float(theta[0]), WHITE_FLOOR * var)
+    model.white_var = max(float(theta[0]), w_floor)
+    model.flicker_b, model.rrw_k, model.gm = 0.0, 0.0, []
     for (kind, tau), v in zip(comps[1:], theta[1:]):
         if kind == "flicker":
             model.flicker_b = math.sqrt(v)
@@ -395,6 +384,76 @@ def fit_noise_model(r: np.ndarray, dt_s: float, bin_rows: int = 1, allow: tuple[
             model.gm.append((math.sqrt(v), float(tau)))
     model.gm.sort(key=lambda g: g[1])
     return model
+
+
+def _trials(G: np.ndarray, b: _Bands, theta: np.ndarray, ll: float, comps: list[tuple[str, float | None]],
+            allow: tuple[str, ...], taus: np.ndarray, dt_s: float, duration: float) -> list[tuple]:
+    """Each component of the kinds ``allow`` (Gauss-Markov at each of ``taus``) not yet in ``comps``
+    fitted beside the model ``G``·``theta``: (ΔBIC, kind, τ, θ, log-likelihood, column, share)."""
+    tried = []
+    for kind in allow:
+        if kind in ("flicker", "rrw") and any(c[0] == kind for c in comps):
+            continue
+        options = [(kind, float(t)) for t in taus] if kind == "gm" else [(kind, None)]
+        for k_, tau in options:
+            if k_ == "gm" and any(c[0] == "gm" and abs(math.log(c[1] / tau)) < 0.5 for c in comps):
+                continue
+            col = _basis(k_, b.omega, dt_s, duration, tau)
+            G2 = np.column_stack([G, col])
+            scale = float(np.median(b.mean_i / np.maximum(col, 1e-300)))
+            th, ll2 = _fit(G2, b, np.concatenate([theta, [max(0.1 * scale, 1e-300)]]))
+            k_params = 2 if k_ == "gm" else 1
+            d_bic = -2.0 * (ll2 - ll) + k_params * math.log(b.ordinates)
+            share = float(np.max(th[-1] * col / np.maximum(G2 @ th, 1e-300)))
+            tried.append((d_bic, k_, tau, th, ll2, col, share))
+    return tried
+
+
+def _accept(tried: list[tuple], G: np.ndarray, b: _Bands, theta: np.ndarray, dt_s: float, duration: float,
+            lo_tau: float, hi_tau: float, ic_min: float) -> tuple | None:
+    """The best of ``tried`` (:func:`_trials`) that lowers the BIC by more than ``ic_min``, is material
+    and, for a Gauss-Markov term, resolved once refined; None when none is."""
+    for d_bic, k_, tau, th, ll2, col, share in sorted(tried, key=lambda x: x[0]):
+        if k_ == "gm" and not _resolved(tau, lo_tau, hi_tau):
+            continue  # a correlation time at an end of the grid is not resolved
+        if d_bic < -ic_min and share >= MATERIAL_SHARE:
+            if k_ == "gm":
+                tau, th, ll2, col = _refine_gm(G, b, theta, tau, dt_s, duration, th, ll2, lo_tau, hi_tau)
+                if not _resolved(tau, lo_tau, hi_tau):
+                    continue  # the likelihood runs to an end of the grid once refined
+            return d_bic, k_, tau, th, ll2, col, share
+    return None
+
+
+def with_slow_part(r: np.ndarray, model: NoiseModel) -> NoiseModel | None:
+    """``model`` (fitted to the residual ``r``, without a slow part: :data:`SLOW_SAMPLES`) with its
+    best slow component added whatever the BIC says: flicker, a random walk, or a Gauss-Markov process
+    of correlation time ≥ :data:`SLOW_SAMPLES` samples, the one of lowest ΔBIC among those that are
+    material (:data:`MATERIAL_SHARE`) and, a Gauss-Markov term, resolved; every variance refitted
+    jointly. The model a slow structure in time is judged against when the selected model has no slow
+    part to judge it with (``bench.analysis.diagnose.noise.beyond_noise``). None when no slow
+    component raises the likelihood materially. Its last step records the slow component (accepted,
+    with its ΔBIC and ``"asked": True``)."""
+    r = np.asarray(r, dtype=float)
+    if r.shape[0] < 64 or float(np.var(r)) <= 0:
+        return None
+    b = _bands(r)
+    dt, duration = model.dt_s, model.duration_s
+    G, theta = _columns(model, b.omega), _theta(model)
+    comps: list[tuple[str, float | None]] = [("white", None)] + [("flicker", None)] * (model.flicker_b > 0) + [
+        ("rrw", None)] * (model.rrw_k > 0) + [("gm", t) for _, t in model.gm]
+    theta, ll = _fit(G, b, theta)
+    lo_tau, hi_tau = max(SLOW_SAMPLES, GM_MIN_SAMPLES) * dt, GM_RESOLVED * duration
+    taus = _tau_grid(dt, lo_tau, hi_tau) if hi_tau > lo_tau else np.zeros(0)
+    tried = [t for t in _trials(G, b, theta, ll, comps, ("flicker", "rrw", "gm"), taus, dt, duration) if t[4] > ll]
+    best = _accept(tried, G, b, theta, dt, duration, lo_tau, hi_tau, -math.inf)
+    if best is None:
+        return None
+    d_bic, kind, tau, th, ll2, _, share = best
+    out = NoiseModel(dt, duration, model.white_var, bin_rows=model.bin_rows, steps=list(model.steps))
+    _settle(out, comps + [(kind, tau)], th, ll2, WHITE_FLOOR * float(np.var(r)))
+    out.steps.append({"component": kind, "tau_s": tau, "d_bic": d_bic, "share": share, "accepted": True, "asked": True})
+    return out
 
 
 @dataclass

@@ -83,8 +83,11 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     # the unwhitened fits and kept through the rounds (a whitener with the slow part in it hides it)
     white_left = frozenset(u["axis"] for u in ow.unexplained)
     alternatives: dict[str, Any] = {}  # a named slow shape one run cannot tell from the noise term
-    structure = {} if hidden & set(nm.KINDS) else nm.beyond_noise(p, white, resid, white_left, hidden, alternatives)
-    models = nm.fit_models(p, resid, hidden, white_left, structure)
+    slow_parts: dict[str, Any] = {}  # axes without a slow part asked again with one (noise.beyond_noise)
+    in_time = frozenset(u["axis"] for u in ow.unexplained if u["where"] and u["where"][0]["probe"] in nm.NOT_NOISE)
+    structure = {} if hidden & set(nm.KINDS) else nm.beyond_noise(p, white, resid, white_left, hidden, alternatives,
+                                                                   slow_parts, in_time)
+    models = nm.fit_models(p, resid, hidden, white_left, structure, slow_parts)
     # against a noise model the slow noise is the model's: no catch-all random walk in the search
     search_hidden = hidden | {"rate_random_walk"}
     if not any(nm.predictable(m, resid[a]) for a, m in models.items()):
@@ -107,7 +110,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         p.whiten = whiten
         found, ow = _select(p, base_terms + fixed, search_hidden, progress)
         resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
-        again = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained), structure)
+        again = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained), structure, slow_parts)
         stable = nm.same_structure(models, again)
         models = again
         if stable:

@@ -20,6 +20,7 @@ read-outs (``docs/diagnose.md``, "Noise model").
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -29,7 +30,7 @@ from bench.analysis.diagnose.engine import Term, build_state
 from bench.analysis.diagnose.result import Finding
 from bench.analysis.diagnose.terms import Built, Probe
 from bench.analysis.noise_model import (IC_MIN, SLOW_SAMPLES, NoiseModel, fit_noise_model, stationarity,
-                                       stationarity_test)
+                                       stationarity_test, with_slow_part)
 
 KINDS = {"bias_instability": "flicker", "rate_random_walk": "rrw", "gauss_markov": "gm"}
 """Vocabulary noise term -> noise-model component kind."""
@@ -89,7 +90,8 @@ UNEVEN_P = 0.05
 
 
 def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], axes: frozenset[str],
-                 hidden: frozenset[str] = frozenset(), alternatives: dict[str, Any] | None = None) -> dict[str, Any]:
+                 hidden: frozenset[str] = frozenset(), alternatives: dict[str, Any] | None = None,
+                 slow_parts: dict[str, Any] | None = None, in_time: frozenset[str] = frozenset()) -> dict[str, Any]:
     """The axes of ``axes`` (where the unwhitened fits leave slow structure) whose slow structure is
     not the noise model's fitted to it: axis -> evidence. Two symptoms are asked for, tests at 5 % and
     1 % (2 % for the two statistics below together), about 0.1 % together for a random walk (they are
@@ -120,7 +122,18 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
 
     ``alternatives`` (filled when given): axis -> the best named slow shape on an axis that is *not*
     beyond, when fewer than :data:`ALTERNATIVE_MATCHES` of the realisations make a shape as large
-    (:func:`slow_alternative`): what one run cannot tell from the noise term the axis will be named."""
+    (:func:`slow_alternative`): what one run cannot tell from the noise term the axis will be named.
+
+    **An axis whose model has no slow part** (:func:`has_slow_part`: the BIC took none) cannot take
+    slow structure for noise, so the probes keep what they find; when ``slow_parts`` is given and the
+    axis is one of ``in_time`` (the white pass' best probe of its structure is time), it is asked once
+    more, against the model with its best slow part
+    (:func:`bench.analysis.noise_model.with_slow_part`), every statistic asked whatever the
+    unevenness, each to be matched by :data:`ASKED_MATCHES` realisations (it pays for the second
+    question). ``slow_parts[axis]`` gets the evidence (``within``: every statistic matched; the
+    statistics, the draws run, how many matched each). Within: :func:`fit_models` gives the axis that
+    model (its slow term is named; nothing unexplained). Not: the axis is left as before (not in the
+    returned axes: the selected model is kept and the probes keep the structure)."""
     from bench.analysis.diagnose.openworld import probe_term
 
     def stats(q: Prepared, need: list[bool]) -> list[float]:
@@ -139,24 +152,36 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     try:
         for a in sorted(axes):
             m = _full_model(p, a, resid[a])
-            if not has_slow_part(m):
-                continue  # the model takes no slow structure: the probes keep what they find
+            asked = not has_slow_part(m)
+            if asked:  # the model takes no slow structure: asked again with its best slow part, or not
+                m = _slow_model(p, a, resid[a]) if slow_parts is not None and a in in_time else None
+                if m is None:
+                    continue  # the probes keep what they find
             lr, p_uneven = stationarity_test(resid[a], m)
-            uneven = bool(p_uneven < UNEVEN_P)
+            uneven = bool(p_uneven < UNEVEN_P) or asked
             beyond = [uneven, uneven, segments is not None]  # which statistics are asked
             if not any(beyond):
                 continue
+            need = ASKED_MATCHES if asked else 1
             observed = stats(p, beyond)
             rng = np.random.default_rng([GOF_SEED, "xyz".index(a)])
             fitted = saved_g[a] - resid[a]
             draws: list[list[float]] = []
+            matched = [0] * len(STATISTICS)
             for _ in range(GOF_DRAWS):
                 p.gyro = {**saved_g, a: fitted + realisation(m, resid[a].size, rng)}
-                draws.append(stats(p, beyond))  # only the statistics no draw has matched yet
-                beyond = [b and draws[-1][i] > observed[i] for i, b in enumerate(beyond)]
+                draws.append(stats(p, beyond))  # only the statistics not yet matched often enough
+                matched = [k + int(b and draws[-1][i] <= observed[i]) for i, (k, b) in enumerate(zip(matched, beyond))]
+                beyond = [b and matched[i] < need for i, b in enumerate(beyond)]
                 if not any(beyond):
-                    break  # each statistic matched by a draw: within the model
+                    break  # each statistic matched: within the model
             p.gyro = saved_g
+            if asked:
+                slow_parts[a] = {"within": not any(beyond), "model": m.describe(), "d_ic": observed,
+                                 "draws_run": len(draws), "matched": matched, "need": need,
+                                 "uneven_chi2": lr, "uneven_p": p_uneven}
+                if any(beyond):
+                    continue  # beyond that model too: left as it was
             if any(beyond):
                 i = beyond.index(True)
                 out[a] = {"statistic": STATISTICS[i], "d_ic": observed[i],
@@ -176,6 +201,11 @@ def beyond_noise(p: Prepared, terms: list[Term], resid: dict[str, np.ndarray], a
     return out
 
 
+ASKED_MATCHES = 2
+"""Realisations that must make each statistic as large when an axis without a slow part is asked
+again with its best slow part (:func:`beyond_noise`): the model was chosen after the probes found
+the structure, a second question the axis gets, so "within" needs two of the :data:`GOF_DRAWS`
+(a 2 % test per statistic), not one."""
 ALTERNATIVE_MATCHES = 10
 """A named slow shape is reported as what one run cannot tell from a slow noise term when fewer than
 this many of the :data:`GOF_DRAWS` realisations make a shape as large (fewer than 10 %): the draws
@@ -322,6 +352,16 @@ def _full_model(p: Prepared, a: str, r: np.ndarray) -> NoiseModel:
     return per_residual(p, "noise_model", a, r, lambda x: fit_noise_model(x, 1.0 / p.fs, p.bin_rows))
 
 
+def _slow_model(p: Prepared, a: str, r: np.ndarray) -> NoiseModel | None:
+    """Axis ``a``'s selected model with its best slow part added
+    (:func:`bench.analysis.noise_model.with_slow_part`), fitted once per residual array; None when it
+    has a slow part already or no slow part raises the likelihood."""
+    from bench.analysis.diagnose.terms import per_residual
+
+    m = _full_model(p, a, r)
+    return None if has_slow_part(m) else per_residual(p, "noise_model_slow", a, r, lambda x: with_slow_part(x, m))
+
+
 def has_slow_part(m: NoiseModel) -> bool:
     """Whether ``m`` has a slow component (flicker, a random walk, or a Gauss-Markov process whose
     correlation time is at least :data:`bench.analysis.noise_model.SLOW_SAMPLES` samples): one that
@@ -346,7 +386,8 @@ def realisation(m: NoiseModel, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str] = frozenset(),
-               left: frozenset[str] | None = None, structure: dict[str, Any] | None = None) -> dict[str, NoiseModel]:
+               left: frozenset[str] | None = None, structure: dict[str, Any] | None = None,
+               slow_parts: dict[str, Any] | None = None) -> dict[str, NoiseModel]:
     """The noise model of each axis. It stays white (the fits ordinary least squares, slow structure
     left to the probes) when
 
@@ -360,7 +401,11 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
     * its slow structure in time is larger than the model makes (``structure``: :func:`beyond_noise`'s
       axes and evidence): that is not this model's noise;
     * a noise term is hidden (``hidden``): with part of its noise vocabulary missing the model would
-      give the noise another term's name."""
+      give the noise another term's name.
+
+    On an axis of ``slow_parts`` (:func:`beyond_noise`: its slow structure in time is within what its
+    model with the best slow part makes) whose selected model has no slow part, the model is that one
+    (:func:`bench.analysis.noise_model.with_slow_part`, on the residual given)."""
     out = {}
     for a, r in resid.items():
         if any(name in hidden for name in KINDS):
@@ -380,6 +425,15 @@ def fit_models(p: Prepared, resid: dict[str, np.ndarray], hidden: frozenset[str]
             out[a] = m
             continue
         m = _full_model(p, a, r)
+        if slow_parts and slow_parts.get(a, {}).get("within") and not has_slow_part(m):
+            slow = _slow_model(p, a, r)
+            if slow is not None:
+                ev = slow_parts[a]
+                m = replace(slow, steps=[*slow.steps[:-1], dict(slow.steps[-1])])
+                seen = ", ".join(f"{name} ΔIC {d:+.0f}" for name, d in zip(STATISTICS, ev["d_ic"]) if not math.isnan(d))
+                m.steps[-1]["reason"] = (f"not selected by the BIC; asked because the probes found structure in time "
+                                         f"({seen}): within what this model makes (each statistic matched by "
+                                         f"{ev['need']} of the first {ev['draws_run']} realisations)")
         st = stationarity(r, m)
         if st < IC_MIN and (left is None or a in left):
             white = fit_noise_model(r, 1.0 / p.fs, p.bin_rows, allow=())
@@ -427,7 +481,9 @@ def findings(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.nda
     """The noise terms named on each axis with nothing unexplained (module docstring). A slow one
     (flicker, a random walk, a Gauss-Markov term of ≥ :data:`SLOW_SAMPLES` samples) on an axis of
     ``alternatives`` (:func:`beyond_noise`) carries ``evidence["alternative"]``: the named slow shape
-    one run cannot tell from it (:func:`alternative_evidence`). An annotation, never a name."""
+    one run cannot tell from it (:func:`alternative_evidence`). An annotation, never a name. A slow
+    one the BIC refused and :func:`fit_models` took when asked (``slow_parts``) carries
+    ``evidence["asked"]``: why (the structure in time, the draws that matched it)."""
     left = {u["axis"] for u in unexplained}
     out: list[Finding] = []
     for a, m in models.items():
@@ -437,6 +493,9 @@ def findings(p: Prepared, models: dict[str, NoiseModel], resid: dict[str, np.nda
         after = math.sqrt(m.whitener().innovation_var)
         ev = {"noise_model": m.describe(), "d_bic": [s["d_bic"] for s in m.steps if s["accepted"]]}
         slow = dict(ev)
+        asked = [s["reason"] for s in m.steps if s.get("asked") and "reason" in s]
+        if asked:  # the slow part the BIC refused, taken because the probes' structure is within it
+            slow["asked"] = asked[-1]
         if alternatives and a in alternatives:
             slow["alternative"] = alternative_evidence(alternatives[a])
         if m.flicker_b > 0 and "bias_instability" not in hidden:
