@@ -210,8 +210,9 @@ ALTERNATIVE_MATCHES = 10
 """A named slow shape is reported as what one run cannot tell from a slow noise term when fewer than
 this many of the :data:`GOF_DRAWS` realisations make a shape as large (fewer than 10 %): the draws
 go on, for that statistic alone, until this many have matched."""
-SEPARATED_BY = ("a second run: a warm-up, a thermal lag or a hysteresis repeats at each power-on or "
-                "temperature cycle, a random walk does not; or a temperature channel that follows it")
+SEPARATED_BY = ("a second run: a warm-up repeats from each power-on (bench diagnose RUN1 RUN2 asks it), a thermal "
+                "lag or a hysteresis with each temperature cycle, a random walk does not; or a temperature channel "
+                "that follows it")
 """What separates a named slow shape from a slow noise term when one run cannot."""
 
 
