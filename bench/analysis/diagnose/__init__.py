@@ -50,11 +50,16 @@ def diagnose(ds: Dataset, model_path: str | None = None, seed: int = 0, hidden: 
     del seed  # deterministic: blocked folds, grids, fixed-seed draws (noise.beyond_noise)
     from bench.analysis.diagnose.blas import single_thread
 
+    with single_thread():
+        return _diagnose(ds, model_path, hidden_names(hidden), progress, power_on_at)
+
+
+def hidden_names(hidden: tuple[str, ...] | frozenset[str]) -> frozenset[str]:
+    """``hidden`` as a set of vocabulary names; :class:`InputError` naming any that is not one."""
     unknown = set(hidden) - set(CANDIDATES)
     if unknown:
         raise InputError(f"diagnose: unknown vocabulary name(s) to hide: {', '.join(sorted(unknown))}")
-    with single_thread():
-        return _diagnose(ds, model_path, frozenset(hidden), progress, power_on_at)
+    return frozenset(hidden)
 
 
 def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = frozenset(),

@@ -43,7 +43,6 @@ import numpy as np
 from bench.analysis.dataset import Dataset
 from bench.analysis.diagnose import noise as nm
 from bench.analysis.diagnose.result import DiagnoseResult, _plain
-from bench.analysis.diagnose.terms import CANDIDATES
 from bench.errors import InputError
 
 POWER_ON_WITHIN_S = 60.0
@@ -136,7 +135,7 @@ def diagnose_runs(datasets: Sequence[Dataset], model_path: str | None = None, hi
     """Diagnose several runs of ONE unit (module docstring). ``power_on_at``: one power-on time (s on
     each run's ``time_s`` axis, or None) per dataset, as :func:`diagnose`'s; None: each run's own
     column or metadata. Raises :class:`InputError` on a ``power_on_at`` of the wrong length."""
-    from bench.analysis.diagnose import _diagnose
+    from bench.analysis.diagnose import _diagnose, hidden_names
     from bench.analysis.diagnose.blas import single_thread
 
     datasets = list(datasets)
@@ -146,10 +145,7 @@ def diagnose_runs(datasets: Sequence[Dataset], model_path: str | None = None, hi
     if len(pons) != len(datasets):
         raise InputError(f"--power-on-at: {len(pons)} value(s) for {len(datasets)} data files; give one per file, in order",
                          None, "--power-on-at")
-    unknown = set(hidden) - set(CANDIDATES)
-    if unknown:
-        raise InputError(f"diagnose: unknown vocabulary name(s) to hide: {', '.join(sorted(unknown))}")
-    hid = frozenset(hidden)
+    hid = hidden_names(hidden)
     with single_thread():
         runs = []
         for k, (ds, pon) in enumerate(zip(datasets, pons), 1):
@@ -421,7 +417,7 @@ def replication(runs: list[DiagnoseResult], taking: list[int], a: str, hidden: f
         return entry
     if "warmup_transient" in hidden:
         return {**entry, "why_unnamed": "warmup_transient is hidden"}
-    entry.update(_shared_warmup(rs, edges, a, tau_grid(span, 1.0 / float(np.median(np.diff(rs[0].t))))))
+    entry.update(_shared_warmup(rs, designs, ys, edges, a, tau_grid(span, 1.0 / float(np.median(np.diff(rs[0].t))))))
     if entry["warmup_draws_as_large"] == 0 and entry["one_sign"] and entry["explains"]:
         entry["named"] = "warmup_transient"
         return entry
@@ -447,14 +443,14 @@ def _draws(rs: list[_Run], designs: list[tuple[np.ndarray, np.ndarray]], a: str,
     return agree, warm
 
 
-def _shared_warmup(rs: list[_Run], edges: np.ndarray, a: str, taus: np.ndarray) -> dict[str, Any]:
+def _shared_warmup(rs: list[_Run], designs: list[tuple[np.ndarray, np.ndarray]], ys: list[np.ndarray],
+                   edges: np.ndarray, a: str, taus: np.ndarray) -> dict[str, Any]:
     """The warm-up of one τ shared by the runs (an amplitude each) and how it is judged: fitted on the
     residuals whitened by the runs' models; then each run's noise model fitted anew on its residual
     less that warm-up (the slow power the warm-up had lent it), and against those models the joint
     ΔIC compared with the draws' (``warmup_draws_as_large``), the τ interval (χ² profile), and the
-    agreement left once the warm-up is taken out (``explains``: some draw reaches it)."""
-    designs = [_design(r, edges) for r in rs]
-    ys = [r.white(r.resid) for r in rs]
+    agreement left once the warm-up is taken out (``explains``: some draw reaches it). ``designs``,
+    ``ys``: the runs' designs and whitened residuals as :func:`replication` made them."""
     k = int(np.argmin(JointWarmup(rs, designs, taus).d_ic(ys)[0]))
     fine = np.geomspace(taus[max(k - 1, 0)], taus[min(k + 1, taus.size - 1)], 17)
     f_ic, f_amps = JointWarmup(rs, designs, fine).d_ic(ys)
