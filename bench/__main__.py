@@ -10,11 +10,16 @@ import sys
 
 def entry() -> int:
     """Run the ``bench`` command line with the start-up signal handler installed first."""
-    from bench.startup_signals import StartupSignals, StoppedDuringStartup
+    from bench.startup_signals import StartupSignals, StoppedDuringStartup, stop_within
 
     guard = StartupSignals.install()
     try:
-        from bench.cli import main, stdout_gone
+        try:
+            from bench.cli import main, stdout_gone
+        except ImportError as exc:  # a pybind11 module turns a stop landing in its import into this
+            if stop_within(exc) is None:
+                raise
+            raise stop_within(exc) from exc
 
         try:
             code = main()

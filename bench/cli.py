@@ -19,7 +19,7 @@ from bench.cli_common import Parser as _Parser
 from bench.cli_common import add_force, epilog, quantity
 from bench.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, KNOWN_ERRORS, InputError, InputErrors
 from bench.quantity_format import fmt_hms
-from bench.startup_signals import STOP_SIGNALS, StartupSignals, StoppedDuringStartup
+from bench.startup_signals import STOP_SIGNALS, StartupSignals, StoppedDuringStartup, stop_within
 from bench.terminal_text import printable
 
 if TYPE_CHECKING:  # imported where used: `bench --help` and `bench --version` stay light (docs/benchmarks.md)
@@ -433,6 +433,9 @@ def main(argv: list[str] | None = None) -> int:
         err.print(exc.one_line(), markup=False, soft_wrap=True)
         return EXIT_BAD_INPUT
     except KNOWN_ERRORS as exc:
+        if stop_within(exc) is not None:  # a library turned the stop signal into its own error
+            err.print(f"bench: {printable(stop_within(exc))}", markup=False, soft_wrap=True)
+            return EXIT_FAILED
         if args.debug:
             raise
         err.print(f"bench: {printable(exc)}", markup=False, soft_wrap=True)
@@ -446,6 +449,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return stdout_gone()
     except Exception as exc:  # noqa: BLE001 - last line of defence: one line, not a traceback
+        if stop_within(exc) is not None:  # a library turned the stop signal into its own error
+            err.print(f"bench: {printable(stop_within(exc))}", markup=False, soft_wrap=True)
+            return EXIT_FAILED
         if args.debug:
             raise
         err.print(f"bench: internal error: {type(exc).__name__}: {printable(exc)} (run with --debug for the traceback)", markup=False,

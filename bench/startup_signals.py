@@ -51,6 +51,20 @@ class StoppedDuringStartup(KeyboardInterrupt):
         return f"stopped during start-up by {self.signal_name}; run file {self.run_file} closed with status aborted"
 
 
+def stop_within(exc: BaseException | None) -> StoppedDuringStartup | None:
+    """The :class:`StoppedDuringStartup` that ``exc`` is, or was raised from or during (its
+    ``__cause__``/``__context__`` chain), or None. A library can turn the stop into its own error:
+    a pybind11 extension (scipy, matplotlib) imported while the signal lands raises
+    ``ImportError: initialization failed`` from it; such an error is the stop, not a failure."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, StoppedDuringStartup):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 class StartupSignals:
     """The start-up handler of :data:`STOP_SIGNALS`; see the module docstring. An instance that was
     never installed (a run started from a thread, ``bench soak``) never raises."""

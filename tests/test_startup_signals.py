@@ -241,3 +241,47 @@ def test_a_stop_signal_inside_a_finaliser_ends_as_documented(tmp_path: Path, whe
     assert lines[-1] == "bench: stopped during start-up by SIGTERM; no run file was created", r.stderr
     assert "StoppedDuringStartup" not in r.stderr and "stopped during start-up" not in "\n".join(lines[:-1]), r.stderr
     assert "ValueError: an unrelated finaliser error" in r.stderr  # other unraisable errors: Python's own report
+
+
+WRAPPED_STOP_SCRIPT = """
+import os, signal, sys
+
+import bench.runner.session as session
+from bench.__main__ import entry
+
+
+def open_lab_importing_an_extension(*_a, **_k):
+    # what a pybind11 extension module (scipy, matplotlib) does when an exception is raised while it
+    # initialises (pybind11's PYBIND11_CATCH_INIT_EXCEPTIONS: raise_from(e, PyExc_ImportError,
+    # "initialization failed")): the stop signal's exception comes out as an ImportError raised from it
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1_000_000):  # the handler runs here
+            pass
+    except BaseException as exc:
+        raise ImportError("initialization failed") from exc
+    raise AssertionError("the stop signal was lost")
+
+
+session.open_lab = open_lab_importing_an_extension
+sys.argv = ["bench", "run", *sys.argv[1:]]
+sys.exit(entry())
+"""
+
+
+def test_a_stop_turned_into_a_library_error_while_the_instruments_open_is_still_the_stop(tmp_path: Path) -> None:
+    """CI failure of 2026-11-28: SIGTERM 1.0 s after the start landed while opening the instruments
+    imported a pybind11 extension, which raised ``ImportError: initialization failed`` from the
+    stop; the run file was closed as "instruments could not be opened: initialization failed".
+    The stop is found in the error's chain: the run file is closed as stopped by SIGTERM, one line."""
+    proc = write_procedure(tmp_path / "p.yaml", "  - power: {instrument: acs_board, on: true}\n", instruments="[acs_board, tvac]")
+    runs = tmp_path / "runs"
+    script = tmp_path / "wrapped.py"
+    script.write_text(WRAPPED_STOP_SCRIPT)
+    r = subprocess.run([sys.executable, str(script), str(proc), "--config", str(SIM_CONFIG), "--sim", "--runs-dir", str(runs)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in r.stderr and r.returncode == 1, (r.returncode, r.stdout, r.stderr)
+    (path,) = runs.glob("*.h5")
+    s = read_run_summary(path, stale_after_s=0)
+    assert (s.status, s.abort_reason) == ("aborted", "stopped during start-up by SIGTERM (while opening the instruments)")
+    assert r.stderr.strip() == f"bench: stopped during start-up by SIGTERM; run file {path} closed with status aborted", r.stderr

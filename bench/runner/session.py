@@ -19,7 +19,7 @@ from bench.record.skeleton import login_name
 from bench.runner.engine import Runner
 from bench.runner.operator import Operator
 from bench.runner.unit_identity import OverdueCalibration, confirm_overdue, declared_identity, root_attrs
-from bench.startup_signals import StartupSignals, StoppedDuringStartup
+from bench.startup_signals import StartupSignals, StoppedDuringStartup, stop_within
 
 
 @dataclass
@@ -107,7 +107,9 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
         runner = Runner(procedure, lab, recorder, progress, operator, declared=declared_identity(config, procedure.instruments))
         runner.operator_name = operator_name or login_name()
         guard.hand_over()
-    except BaseException as exc:
+    except BaseException as raised:
+        # a library may have turned the stop signal into its own error (stop_within): it is the stop
+        exc = stop_within(raised) or raised
         with guard.held():  # the run ends before its first step: the file is finalised as aborted, its row updated
             if lab is not None:
                 try:
@@ -126,6 +128,8 @@ def start_run(procedure: Procedure, config: LabConfig, *, procedure_path: Path, 
                 (hook or RunCatalogHook(recorder.path, runs_dir, catalog)).run_ended()
         if isinstance(exc, StoppedDuringStartup):
             exc.run_file = recorder.path
+        if exc is not raised:
+            raise exc from raised
         raise
     return RunSession(recorder, lab, runner, faults, hook)
 
