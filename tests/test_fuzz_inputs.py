@@ -1252,21 +1252,38 @@ print(json.dumps({"worst": worst, "bad": bad}), flush=True)
 """
 
 
-def _sweep(tmp_path: Path, run_file: Path, offsets: list[int], timeout_s: float) -> dict:
-    """Cut ``run_file`` at every offset (longest first) in one worker process and open each cut
-    with the replay's reader (version check, summary, the 'procedure' event) and every stream;
-    what went wrong and the slowest offset. A hang fails with the offset it hung at."""
-    proc = subprocess.Popen([sys.executable, "-c", _SWEEP, str(run_file), str(tmp_path / "cut.h5")],
-                            cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def _sweep(tmp_path: Path, run_file: Path, offsets: list[int], timeout_s: float, workers: int = 2) -> dict:
+    """Cut ``run_file`` at every offset (longest first) and open each cut with the replay's reader
+    (version check, summary, the 'procedure' event) and every stream, the offsets shared among
+    ``workers`` processes (each with its own copy; CI has 2 cores); what went wrong and the slowest
+    offset. A hang fails with the offset it hung at."""
+    import time
+
+    procs = [subprocess.Popen([sys.executable, "-c", _SWEEP, str(run_file), str(tmp_path / f"cut{i}.h5")],
+                              cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for i in range(workers)]
+    for i, proc in enumerate(procs):  # every worker has its offsets before any is waited for
+        proc.stdin.write(json.dumps(offsets[i::workers]))
+        proc.stdin.close()
+        proc.stdin = None  # closed: communicate() only reads
+    deadline = time.monotonic() + timeout_s
+    results = []
     try:
-        out, err = proc.communicate(json.dumps(offsets), timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, err = proc.communicate()
-        last = out.split()[-1] if out.split() else "?"
-        pytest.fail(f"reading {run_file.name} cut at {last} bytes hung (sweep over {timeout_s:.0f} s)")
-    assert proc.returncode == 0, f"the sweep crashed (exit {proc.returncode}) after offset {out.split()[-1:]}: {err[-2000:]}"
-    return json.loads(out.splitlines()[-1])
+        for proc in procs:
+            try:
+                out, err = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                out, err = proc.communicate()
+                last = out.split()[-1] if out.split() else "?"
+                pytest.fail(f"reading {run_file.name} cut at {last} bytes hung (sweep over {timeout_s:.0f} s)")
+            assert proc.returncode == 0, f"the sweep crashed (exit {proc.returncode}) after offset {out.split()[-1:]}: {err[-2000:]}"
+            results.append(json.loads(out.splitlines()[-1]))
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+    return {"worst": max((r["worst"] for r in results), key=lambda w: w[0]), "bad": [b for r in results for b in r["bad"]]}
 
 
 def test_truncated_run_files_are_refused_in_bounded_time_fast_sweep(tmp_path, short_run):
