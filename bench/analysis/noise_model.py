@@ -42,8 +42,10 @@ so no single early row dominates a fit. Gaps in time start a new segment.
 
 The engine cannot tell a slow deterministic drift from bias instability or a random walk in one
 run: both are power at low frequency. The model takes whatever the deterministic search and the
-covariate probes leave; a second run (the drift repeats, noise does not) or a temperature channel
-(a drift that follows it is a term of the baseline) separates them.
+covariate probes leave; a second run (the drift repeats, noise does not) separates them. A
+temperature channel takes a drift that follows it into the baseline, but over a temperature that
+only rises after power-on it takes a drift that follows time as well: in one run it does not
+separate them (docs/diagnose.md, Known limits).
 """
 
 from __future__ import annotations
