@@ -136,9 +136,32 @@ def _select(p: Prepared, terms: list[Term], hidden: frozenset[str], progress: An
 
     found = search(p, terms, hidden=hidden, progress=progress)
     ow = finish(p, terms, [t for t in found.final.terms if t.effect != "baseline" and not t.fixed], hidden, progress)
-    found.dropped.extend(ow.dropped)
     found.sequence, found.final = sequence(p, build_state(p, terms), ow.found)
+    # a warm-up whose τ the data do not bound from above is a slow drift over this run, which the
+    # sensor's slow noise also makes: not named, and the axis goes on as if it had not been found
+    # (its drift left to the noise model; docs/diagnose.md, Power-on)
+    unbounded = [d for d in (_unbounded_warmup(p, found.final, t) for t in ow.found) if d is not None]
+    if unbounded:
+        gone = {(d["effect"], d["axis"]) for d in unbounded}
+        ow.found = [t for t in ow.found if t.key not in gone]
+        ow.dropped.extend(unbounded)
+        found.sequence, found.final = sequence(p, build_state(p, terms), ow.found)
+    found.dropped.extend(ow.dropped)
     return found, ow
+
+
+def _unbounded_warmup(p: Prepared, final: Any, term: Term) -> dict[str, Any] | None:
+    """A ``dropped`` entry for ``term`` when it is a searched warm-up whose τ interval
+    (:func:`_tau_interval`) reaches the top of its grid, else None."""
+    if term.effect != "warmup_transient" or term.fixed:
+        return None
+    lo, hi, top = _tau_interval(p, final, term, with_top=True)
+    if hi < top * (1.0 - 1e-9):
+        return None
+    return {"effect": term.effect, "axis": term.axis, "nl": dict(term.nl), "tau_s_interval": [lo, hi],
+            "reason": f"τ not bounded by the data: {term.nl['tau_s']:.0f} s, interval [{lo:.0f}, {hi:.0f}] s reaches "
+                      f"the top of its grid ({top:.0f} s, duration/3): a slow drift over this run, not a warm-up "
+                      "one run can name"}
 
 
 # ---- model file -----------------------------------------------------------------------------------
@@ -267,11 +290,12 @@ TAU_CHI2 = 3.84
 """χ²₁ at 95 %: the warm-up τ interval is where the whole-data fit is within this of the best."""
 
 
-def _tau_interval(p: Prepared, final: Any, term: Term) -> list[float]:
+def _tau_interval(p: Prepared, final: Any, term: Term, with_top: bool = False) -> list[float]:
     """[low, high] (s): the warm-up time constants whose whole-data fit, the other terms as found,
     lies within :data:`TAU_CHI2` of the best in units of the residual's variance times its inflation
     φ (the data's correlated noise widens it). ``high`` at the top of the grid: the data do not bound
-    τ from above."""
+    τ from above (such a warm-up is not named: :func:`_unbounded_warmup`). ``with_top``: [low, high,
+    top of the grid]."""
     from bench.analysis.diagnose.engine import _full_sse, inflation
 
     cand = CANDIDATES[term.effect]
@@ -286,7 +310,8 @@ def _tau_interval(p: Prepared, final: Any, term: Term) -> list[float]:
     phi = inflation({a: st.fit.sse_block}, {a: st.fit.sum_block}, w)
     ok = (sse - sse.min()) / phi <= TAU_CHI2
     best = float(term.nl["tau_s"])
-    return [float(min(taus[ok].min(), best)), float(max(taus[ok].max(), best))]
+    out = [float(min(taus[ok].min(), best)), float(max(taus[ok].max(), best))]
+    return out + [float(grid[-1])] if with_top else out
 
 
 def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:
