@@ -78,6 +78,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
         fixed += _fixed_terms(p, name, axis, nl, ctx)
     found, ow = _select(p, base_terms + fixed, hidden, progress)
+    unbounded = _unbounded(found.dropped, {})
     # the sensor's noise model from what is left; when it is not white, selection is made again
     # against it (generalised least squares): correlated noise may have passed for structure, and may
     # have hidden it. When the correlated part is weak (the noise is mostly white) only the causes
@@ -114,6 +115,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
                      + "; ".join(f"{a}: {m.describe()}" for a, m in models.items()) + ")")
         p.whiten = whiten
         found, ow = _select(p, base_terms + fixed, search_hidden, progress)
+        unbounded = _unbounded(found.dropped, unbounded)
         resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
         again = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained), structure, slow_parts)
         stable = nm.same_structure(models, again)
@@ -121,6 +123,9 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         if stable:
             break
     noise = nm.findings(p, models, resid, ow.unexplained, hidden, alternatives)
+    # a warm-up left unnamed in any round is said, unless named (bounded) in the last one
+    found.dropped.extend(d for a, d in unbounded.items() if d not in found.dropped
+                         and not any(t.effect == "warmup_transient" and t.axis == a for t in ow.found))
     return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid, noise))
 
 
@@ -150,6 +155,15 @@ def _select(p: Prepared, terms: list[Term], hidden: frozenset[str], progress: An
     return found, ow
 
 
+UNBOUNDED = "τ not bounded by the data"
+"""The start of a ``dropped`` reason for a warm-up whose τ interval reaches the top of its grid."""
+
+
+def _unbounded(dropped: list[dict[str, Any]], before: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``before`` (axis → ``dropped`` entry) updated with the unbounded warm-ups in ``dropped``."""
+    return {**before, **{d["axis"]: d for d in dropped if d["reason"].startswith(UNBOUNDED)}}
+
+
 def _unbounded_warmup(p: Prepared, final: Any, term: Term) -> dict[str, Any] | None:
     """A ``dropped`` entry for ``term`` when it is a searched warm-up whose τ interval
     (:func:`_tau_interval`) reaches the top of its grid, else None."""
@@ -159,7 +173,7 @@ def _unbounded_warmup(p: Prepared, final: Any, term: Term) -> dict[str, Any] | N
     if hi < top * (1.0 - 1e-9):
         return None
     return {"effect": term.effect, "axis": term.axis, "nl": dict(term.nl), "tau_s_interval": [lo, hi],
-            "reason": f"τ not bounded by the data: {term.nl['tau_s']:.0f} s, interval [{lo:.0f}, {hi:.0f}] s reaches "
+            "reason": f"{UNBOUNDED}: {term.nl['tau_s']:.0f} s, interval [{lo:.0f}, {hi:.0f}] s reaches "
                       f"the top of its grid ({top:.0f} s, duration/3): a slow drift over this run, not a warm-up "
                       "one run can name"}
 
