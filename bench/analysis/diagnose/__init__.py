@@ -171,6 +171,7 @@ def _unbounded_warmup(p: Prepared, final: Any, term: Term) -> dict[str, Any] | N
         return None
     lo, hi, top = _tau_interval(p, final, term, with_top=True)
     if hi < top * (1.0 - 1e-9):
+        term.evidence["tau_s_interval"] = [lo, hi]  # the final state's, as the result reports it
         return None
     return {"effect": term.effect, "axis": term.axis, "nl": dict(term.nl), "tau_s_interval": [lo, hi],
             "reason": f"{UNBOUNDED}: {term.nl['tau_s']:.0f} s, interval [{lo:.0f}, {hi:.0f}] s reaches "
@@ -279,7 +280,7 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             den = sum(float(np.dot(term.built.offsets[a], term.built.offsets[a])) for a in touched)
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
-        if term.effect == "warmup_transient":
+        if term.effect == "warmup_transient" and "tau_s_interval" not in ev:  # a fixed one's; a searched one's is set
             ev["tau_s_interval"] = _tau_interval(p, s.final, term)
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
     for ln in p.lines:  # coherent lines above the bins' reach, fitted on the raw samples
