@@ -328,7 +328,8 @@ def test_two_real_noise_hours_name_nothing_across_runs(real_log, bg, first, seco
 @pytest.mark.slow
 def test_a_slow_curve_in_one_run_only_does_not_repeat_from_power_on(real_log):
     """Two runs of one unit in two real S5 hours, nothing injected; the first hour's phone wander on y
-    takes a warm-up's shape by itself (one run names warmup_transient:y, never injected): no axis may be
+    takes a warm-up's shape by itself (one run finds warmup_transient:y, never injected, and leaves it
+    unnamed: its τ interval reaches the top of the grid; its noise is fitted as if named): no axis may be
     called "repeats from power-on" when the second run has no such curve. Before every run had to be
     predicted by the others' curve, y was: in-sample agreement 0.87 against draws to 0.74 (the second
     run's warm-up amplitude at that τ +0.004 deg/s), its noise names dropped."""
