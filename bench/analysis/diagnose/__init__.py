@@ -280,7 +280,7 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             den = sum(float(np.dot(term.built.offsets[a], term.built.offsets[a])) for a in touched)
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
-        if term.effect == "warmup_transient" and "tau_s_interval" not in ev:  # a fixed one's; a searched one's is set
+        if term.effect == "warmup_transient" and "tau_s_interval" not in ev:  # else set by _unbounded_warmup
             ev["tau_s_interval"] = _tau_interval(p, s.final, term)
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
     for ln in p.lines:  # coherent lines above the bins' reach, fitted on the raw samples
