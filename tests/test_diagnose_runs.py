@@ -143,13 +143,22 @@ def test_two_runs_of_a_random_walk_name_nothing_across_runs():
 
 
 def test_one_run_is_today_s_result_and_the_test_is_not_asked():
-    s, _ = unit_run([], 5, 0, 900.0)
+    """One run of the warm-up unit (15 min): the single-run result, not asked across runs. Its warm-up
+    (τ 297 s, the run's third) is found at τ ≈ 260 s with an interval reaching the top of the grid
+    (300 s): one run does not bound τ, so it is not named and ``dropped`` says why (docs/diagnose.md,
+    Power-on); given a second run it is named across runs (:func:`check_named_across`)."""
+    s, eff = unit_run(["warmup_transient"], WARMUP_SEED, 0, 900.0)
     alone = diagnose(s.dataset)
     result = diagnose_runs([s.dataset])
     assert result.across == [{"test": "repeats from power-on", "asked": False,
                                "reason": "one run: a second run of the unit is needed"}]
     assert result.runs[0].json == alone.json
     assert result.runs[0].summary_lines() == alone.summary_lines()
+    a = eff[0]["axis"]
+    assert [f for f in alone.findings if f.effect not in NOISE_TERMS] == [], [(f.effect, f.axis) for f in alone.findings]
+    (gone,) = [d for d in alone.dropped if d["effect"] == "warmup_transient"]
+    assert gone["axis"] == a and gone["reason"].startswith("τ not bounded by the data"), gone
+    assert gone["tau_s_interval"][1] == pytest.approx(300.0) and gone["tau_s_interval"][0] < gone["nl"]["tau_s"], gone
 
 
 def test_runs_without_a_known_power_on_are_left_out_and_said():
@@ -319,7 +328,8 @@ def test_two_real_noise_hours_name_nothing_across_runs(real_log, bg, first, seco
 @pytest.mark.slow
 def test_a_slow_curve_in_one_run_only_does_not_repeat_from_power_on(real_log):
     """Two runs of one unit in two real S5 hours, nothing injected; the first hour's phone wander on y
-    takes a warm-up's shape by itself (one run names warmup_transient:y, never injected): no axis may be
+    takes a warm-up's shape by itself (one run finds warmup_transient:y, never injected, and leaves it
+    unnamed: its τ interval reaches the top of the grid; its noise is fitted as if named): no axis may be
     called "repeats from power-on" when the second run has no such curve. Before every run had to be
     predicted by the others' curve, y was: in-sample agreement 0.87 against draws to 0.74 (the second
     run's warm-up amplitude at that τ +0.004 deg/s), its noise names dropped."""

@@ -78,6 +78,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
     for name, axis, nl in model_terms + [(e.name, e.axis, e) for e in spec_effects]:
         fixed += _fixed_terms(p, name, axis, nl, ctx)
     found, ow = _select(p, base_terms + fixed, hidden, progress)
+    unbounded = _unbounded(found.dropped, {})
     # the sensor's noise model from what is left; when it is not white, selection is made again
     # against it (generalised least squares): correlated noise may have passed for structure, and may
     # have hidden it. When the correlated part is weak (the noise is mostly white) only the causes
@@ -114,6 +115,7 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
                      + "; ".join(f"{a}: {m.describe()}" for a, m in models.items()) + ")")
         p.whiten = whiten
         found, ow = _select(p, base_terms + fixed, search_hidden, progress)
+        unbounded = _unbounded(found.dropped, unbounded)
         resid = nm.residuals(p, base_terms + fixed + ow.found, ow.unexplained)
         again = nm.fit_models(p, resid, hidden, frozenset(u["axis"] for u in ow.unexplained), structure, slow_parts)
         stable = nm.same_structure(models, again)
@@ -121,6 +123,9 @@ def _diagnose(ds: Dataset, model_path: str | None, hidden: frozenset[str] = froz
         if stable:
             break
     noise = nm.findings(p, models, resid, ow.unexplained, hidden, alternatives)
+    # a warm-up left unnamed in any round is said, unless named (bounded) in the last one
+    found.dropped.extend(d for a, d in unbounded.items() if d not in found.dropped
+                         and not any(t.effect == "warmup_transient" and t.axis == a for t in ow.found))
     return _result(p, ds, found, model_path, raw, fixed, ow, noise, nm.section(p, models, resid, noise))
 
 
@@ -136,9 +141,42 @@ def _select(p: Prepared, terms: list[Term], hidden: frozenset[str], progress: An
 
     found = search(p, terms, hidden=hidden, progress=progress)
     ow = finish(p, terms, [t for t in found.final.terms if t.effect != "baseline" and not t.fixed], hidden, progress)
-    found.dropped.extend(ow.dropped)
     found.sequence, found.final = sequence(p, build_state(p, terms), ow.found)
+    # a warm-up whose τ the data do not bound from above is a slow drift over this run, which the
+    # sensor's slow noise also makes: not named, and the axis goes on as if it had not been found
+    # (its drift left to the noise model; docs/diagnose.md, Power-on)
+    unbounded = [d for d in (_unbounded_warmup(p, found.final, t) for t in ow.found) if d is not None]
+    if unbounded:
+        gone = {(d["effect"], d["axis"]) for d in unbounded}
+        ow.found = [t for t in ow.found if t.key not in gone]
+        ow.dropped.extend(unbounded)
+        found.sequence, found.final = sequence(p, build_state(p, terms), ow.found)
+    found.dropped.extend(ow.dropped)
     return found, ow
+
+
+UNBOUNDED = "τ not bounded by the data"
+"""The start of a ``dropped`` reason for a warm-up whose τ interval reaches the top of its grid."""
+
+
+def _unbounded(dropped: list[dict[str, Any]], before: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``before`` (axis → ``dropped`` entry) updated with the unbounded warm-ups in ``dropped``."""
+    return {**before, **{d["axis"]: d for d in dropped if d["reason"].startswith(UNBOUNDED)}}
+
+
+def _unbounded_warmup(p: Prepared, final: Any, term: Term) -> dict[str, Any] | None:
+    """A ``dropped`` entry for ``term`` when it is a searched warm-up whose τ interval
+    (:func:`_tau_interval`) reaches the top of its grid, else None."""
+    if term.effect != "warmup_transient" or term.fixed:
+        return None
+    lo, hi, top = _tau_interval(p, final, term, with_top=True)
+    if hi < top * (1.0 - 1e-9):
+        term.evidence["tau_s_interval"] = [lo, hi]  # the final state's, as the result reports it
+        return None
+    return {"effect": term.effect, "axis": term.axis, "nl": dict(term.nl), "tau_s_interval": [lo, hi],
+            "reason": f"{UNBOUNDED}: {term.nl['tau_s']:.0f} s, interval [{lo:.0f}, {hi:.0f}] s reaches "
+                      f"the top of its grid ({top:.0f} s, duration/3): a slow drift over this run, not a warm-up "
+                      "one run can name"}
 
 
 # ---- model file -----------------------------------------------------------------------------------
@@ -242,7 +280,7 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
             den = sum(float(np.dot(term.built.offsets[a], term.built.offsets[a])) for a in touched)
             ev["fitted_scale"] = num / den if den > 0 else float("nan")
         ev.setdefault("gain_band", _band_gain(p, before, after, touched))
-        if term.effect == "warmup_transient":
+        if term.effect == "warmup_transient" and "tau_s_interval" not in ev:  # else set by _unbounded_warmup
             ev["tau_s_interval"] = _tau_interval(p, s.final, term)
         findings.append(Finding(term.effect, term.axis, params, before.rms(touched), after.rms(touched), ev))
     for ln in p.lines:  # coherent lines above the bins' reach, fitted on the raw samples
@@ -267,11 +305,12 @@ TAU_CHI2 = 3.84
 """χ²₁ at 95 %: the warm-up τ interval is where the whole-data fit is within this of the best."""
 
 
-def _tau_interval(p: Prepared, final: Any, term: Term) -> list[float]:
+def _tau_interval(p: Prepared, final: Any, term: Term, with_top: bool = False) -> list[float]:
     """[low, high] (s): the warm-up time constants whose whole-data fit, the other terms as found,
     lies within :data:`TAU_CHI2` of the best in units of the residual's variance times its inflation
     φ (the data's correlated noise widens it). ``high`` at the top of the grid: the data do not bound
-    τ from above."""
+    τ from above (such a warm-up is not named: :func:`_unbounded_warmup`). ``with_top``: [low, high,
+    top of the grid]."""
     from bench.analysis.diagnose.engine import _full_sse, inflation
 
     cand = CANDIDATES[term.effect]
@@ -286,7 +325,8 @@ def _tau_interval(p: Prepared, final: Any, term: Term) -> list[float]:
     phi = inflation({a: st.fit.sse_block}, {a: st.fit.sum_block}, w)
     ok = (sse - sse.min()) / phi <= TAU_CHI2
     best = float(term.nl["tau_s"])
-    return [float(min(taus[ok].min(), best)), float(max(taus[ok].max(), best))]
+    out = [float(min(taus[ok].min(), best)), float(max(taus[ok].max(), best))]
+    return out + [float(grid[-1])] if with_top else out
 
 
 def _band_gain(p: Prepared, before: Any, after: Any, axes: list[str]) -> float:

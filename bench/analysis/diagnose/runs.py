@@ -236,6 +236,7 @@ class _Run:
 
 def _run_axis(r: DiagnoseResult, a: str) -> _Run:
     """The slow residual of run ``r`` on axis ``a`` (module docstring) and what the draws need."""
+    from bench.analysis.diagnose import UNBOUNDED
     from bench.analysis.diagnose.engine import axis_state
     from bench.analysis.noise_model import fit_noise_model
 
@@ -246,7 +247,10 @@ def _run_axis(r: DiagnoseResult, a: str) -> _Run:
         every = nm.noise_terms(p, list(s.final.terms), r.unexplained)
         st = axis_state(p, a, [t for t in every if t.effect != "warmup_transient"])
         own = any(t.effect == "warmup_transient" and t.axis == a for t in every)
-        noise = axis_state(p, a, every).resid() if own else None  # the noise as the run itself left it
+        # a warm-up the run found but left unnamed (its τ not bounded by one run): its noise as if named
+        gone = [] if own else [_warm_term(p, s.final, a, d["nl"]) for d in r.dropped
+                               if d["effect"] == "warmup_transient" and d["axis"] == a and d["reason"].startswith(UNBOUNDED)]
+        noise = axis_state(p, a, every + gone[-1:]).resid() if own or gone else None  # the noise as the run left it
     finally:
         p.whiten = saved
     U, sv, _ = np.linalg.svd(st.X, full_matrices=False)
@@ -254,6 +258,15 @@ def _run_axis(r: DiagnoseResult, a: str) -> _Run:
     resid = st.y - U @ (U.T @ st.y)
     m = fit_noise_model(resid if noise is None else noise, 1.0 / p.fs, p.bin_rows)
     return _Run(np.asarray(p.power_on, float), p.t, resid, U, m, None if m.is_white else m.whitener(), p.bin_rows)
+
+
+def _warm_term(p: Any, final: Any, a: str, nl: dict[str, Any]) -> Any:
+    """The warm-up on axis ``a`` with parameters ``nl`` as a term of the state ``final``."""
+    from bench.analysis.diagnose.engine import Term
+    from bench.analysis.diagnose.terms import CANDIDATES
+
+    cand = CANDIDATES["warmup_transient"]
+    return Term(cand.name, a, dict(nl), cand.build(p, a, dict(nl), final.context()))
 
 
 def windows(starts: list[float], ends: list[float]) -> np.ndarray:
