@@ -211,8 +211,9 @@ ALTERNATIVE_MATCHES = 10
 this many of the :data:`GOF_DRAWS` realisations make a shape as large (fewer than 10 %): the draws
 go on, for that statistic alone, until this many have matched."""
 SEPARATED_BY = ("a second run: a warm-up repeats from each power-on (bench diagnose RUN1 RUN2 asks it), a thermal "
-                "lag or a hysteresis with each temperature cycle, a random walk does not; or a temperature channel "
-                "that follows it")
+                "lag or a hysteresis with each temperature cycle, a random walk does not")
+# not "a temperature channel that follows it": one run with a temperature that moves only with time
+# since power-on cannot tell a warm-up from a temperature coefficient (docs/diagnose.md, Known limits)
 """What separates a named slow shape from a slow noise term when one run cannot."""
 
 
