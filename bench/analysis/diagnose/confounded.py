@@ -15,16 +15,16 @@ of the axis' white-noise variance σ² (the result's noise floor, deg/s):
   the threshold. With no temperature effect and white noise the fitted cubic's three coefficients
   make that sum a χ²₃ variable, so the threshold (χ²₃ at 99.9 %) is what noise alone exceeds once
   in a thousand runs;
-* in time: the temperature is fitted by a smooth function of time S(t) (a cubic in time, plus the
-  warm-up family e^(−t_on/τ) in time since power-on t_on, or since the first row when power-on is
-  not known), and the part of
-  the contribution that function of time does not reproduce, r = c(T(t)) − c(S(t)) (less its
-  mean), has Σ r²/σ² at or below the threshold: replacing the temperature by a drift in time then
-  changes the fit by less than the noise can show.
+* in time: the temperature is monotone (then any function of it is one of time, exactly), or,
+  with S(t) its least-squares fit by a smooth function of time (a cubic in time, plus the warm-up
+  family e^(−t_on/τ) in time since power-on t_on, or since the first row when power-on is not
+  known), the part of the contribution no function of time reproduces, r = c(T(t)) − c(S(t))
+  (less its mean), has Σ r²/σ² at or below the threshold: replacing the temperature by a drift
+  in time then changes the fit by less than the noise can show.
 
-Only then is the axis reported. A temperature cycle (a chamber) leaves a remainder far above the
-threshold, and so does a chamber ramp that stops at its set point (the kink is no smooth drift).
-A monotone temperature alone is not enough: it is recorded (``monotone``) and worded, not tested.
+Only then is the axis reported. A temperature cycle (a chamber) reverses and leaves a remainder far
+above the threshold, so it is not. A one-way chamber ramp is: over one ramp a temperature
+coefficient and a drift in time are the same function of time.
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def temperature_in_time(t: np.ndarray, temp: np.ndarray, power_on: np.ndarray | 
         rem = v - P.polyval(smooth, cubic)
         rem = rem - rem.mean()
         chi2, chi2_rem = float(vc @ vc) / (s * s), float(rem @ rem) / (s * s)
-        said = chi2 > CHI2_MATERIAL and chi2_rem <= CHI2_MATERIAL
+        said = chi2 > CHI2_MATERIAL and (mono or chi2_rem <= CHI2_MATERIAL)
         if not (said or every_axis):
             continue
         out[a] = {"axis": a, "held_dps": float(np.ptp(v)), "first_last_dps": float(v[0] - v[-1]),
