@@ -56,6 +56,8 @@ def temperature_in_time(t: np.ndarray, temp: np.ndarray, power_on: np.ndarray | 
     ``temp_min_c``/``temp_max_c``, ``monotone``, ``since_power_on``, ``chi2`` (materiality),
     ``chi2_not_in_time`` (the remainder's), ``threshold``. ``every_axis``: every axis with its
     figures and ``said`` (the measurements behind the thresholds)."""
+    if temp.size < 8 or not np.all(np.isfinite(temp)):
+        return {}
     smooth, since = smooth_in_time(t, temp, power_on)
     mono = monotone(temp)
     out: dict[str, dict[str, Any]] = {}
@@ -101,7 +103,7 @@ def monotone(temp: np.ndarray) -> bool:
     return min(rise, fall) <= tol and float(np.ptp(means)) > tol
 
 
-def _shape(t: np.ndarray, temp: np.ndarray) -> np.ndarray:
+def _shape(t: np.ndarray) -> np.ndarray:
     """Columns 1, s, s², s³ of the scaled time s ∈ [−1, 1]."""
     span = float(t[-1] - t[0]) or 1.0
     s = 2.0 * (t - t[0]) / span - 1.0
@@ -113,7 +115,7 @@ def smooth_in_time(t: np.ndarray, temp: np.ndarray, power_on: np.ndarray | None)
     in time since power-on gave it): a cubic in time, plus e^(−t_on/τ) (τ on :data:`TAU_GRID_S`;
     t_on the time since power-on, or since the first row when power-on is not known: a settling
     from the start of the log is as much a drift in time) when that halves the squared remainder."""
-    base = _shape(t, temp)
+    base = _shape(t)
     fit = base @ np.linalg.lstsq(base, temp, rcond=None)[0]
     sse = float(np.sum((temp - fit) ** 2))
     settle = False
