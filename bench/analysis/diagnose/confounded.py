@@ -114,18 +114,22 @@ def smooth_in_time(t: np.ndarray, temp: np.ndarray, power_on: np.ndarray | None)
     """(the temperature's least-squares fit by a smooth function of time, whether the warm-up family
     in time since power-on gave it): a cubic in time, plus e^(−t_on/τ) (τ on :data:`TAU_GRID_S`;
     t_on the time since power-on, or since the first row when power-on is not known: a settling
-    from the start of the log is as much a drift in time) when that halves the squared remainder."""
-    base = _shape(t)
-    fit = base @ np.linalg.lstsq(base, temp, rcond=None)[0]
-    sse = float(np.sum((temp - fit) ** 2))
-    settle = False
+    from the start of the log is as much a drift in time), the τ that removes most, when it removes
+    at least half the squared remainder."""
+    q, _ = np.linalg.qr(_shape(t))
+    fit = q @ (q.T @ temp)
+    r0 = temp - fit
+    sse = float(r0 @ r0)
     on = np.clip(power_on, 0.0, None) if power_on is not None else t - t[0]
-    for tau in TAU_GRID_S:
-        x = np.column_stack([base, np.exp(-on / tau)])
-        f = x @ np.linalg.lstsq(x, temp, rcond=None)[0]
-        e = float(np.sum((temp - f) ** 2))
-        if e < sse and (settle or e < 0.5 * sse):
-            fit, sse, settle = f, e, True
+    x = np.exp(-on[:, None] / TAU_GRID_S[None, :])
+    x -= q @ (q.T @ x)  # each settle column less its part in the cubic in time
+    nx = np.einsum("ij,ij->j", x, x)
+    ok = nx > 1e-12 * max(float(nx.max()), 1e-300)
+    gain = np.where(ok, (x.T @ r0) ** 2 / np.where(ok, nx, 1.0), 0.0)
+    k = int(np.argmax(gain))
+    settle = bool(gain[k] > 0.5 * sse)
+    if settle:
+        fit = fit + x[:, k] * (float(x[:, k] @ r0) / nx[k])
     return fit, settle and power_on is not None
 
 
