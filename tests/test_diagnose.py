@@ -564,8 +564,10 @@ def test_estcube_stepper_bench_worm_gear(seed):
 def test_json_shape_summary_and_report(tmp_path):
     session, effects, result = check_exact(["pressure_bias"], _seed("json"))
     doc = result.json
-    assert set(doc) == {"axes", "findings", "unexplained", "skipped", "band_s", "noise"}
+    assert set(doc) == {"axes", "findings", "unexplained", "skipped", "band_s", "noise", "temperature_in_time"}
     assert doc["unexplained"] == [] and doc["band_s"] == pytest.approx(30.0)
+    # the chamber cycle moves the temperature against time: its cubic is no drift in time (confounded.py)
+    assert doc["temperature_in_time"] == []
     for a, sec in doc["noise"].items():  # white noise: the model says so, in IEEE 952 units
         assert sec["whitened"] is False and sec["model"]["gauss_markov"] == [], (a, sec)
         arw = sec["model"]["arw_deg_per_sqrt_h"]  # the generator's 0.011 deg/s at 1 Hz = 0.66 deg/√h

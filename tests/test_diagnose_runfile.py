@@ -56,6 +56,11 @@ def test_diagnose_recorded_run_json_report_and_model(ramp_run, tmp_path):
     found = {f["axis"]: f for f in doc["findings"]}
     assert sorted((f["effect"], f["axis"]) for f in doc["findings"]) == [("warmup_transient", a) for a in "xyz"], doc
     assert doc["unexplained"] == []
+    # the board's temperature only rises (20.1 -> 36.5 degC over the 25 min: its self-heating, then the
+    # chamber's ramp): its cubic is a drift in time as much as a temperature coefficient, said on
+    # every axis, nothing named for it (confounded.py; docs/diagnose.md, Output)
+    said = {e["axis"]: e for e in doc["temperature_in_time"]}
+    assert sorted(said) == ["x", "y", "z"] and all(e["monotone"] and e["temp_last_c"] > 35 for e in said.values()), said
     for a, (amp, tau) in truth.items():
         f = found[a]
         # within 30 %: the warm-up starts with the chamber ramp, so the fitted temperature cubic and the

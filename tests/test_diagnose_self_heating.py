@@ -17,7 +17,9 @@ What holds (measured 2026-11-28 on this construction; the figures in the docs):
   baseline's temperature cubic takes either (no warm-up name; most of the warm-up in the cubic);
   without the channel the same warm-up is named ``warmup_transient``;
 * the channel gives no temperature name (or any deterministic name) to a random walk or to the
-  phone's own wander, although the cubic takes part of them.
+  phone's own wander, although the cubic takes part of them;
+* the output says so: every axis whose cubic holds ≥ 0.03 deg/s is in ``temperature_in_time``
+  with its summary line (``confounded.py``).
 
 Outside truth: the S5 noise is real; the temperature channel, its coupling to the bias and the
 warm-up shape are our construction. ``BENCH_SLOW=1``: 6 runs of 1 h, about 50 s.
@@ -91,9 +93,25 @@ def test_one_run_cannot_tell_a_warm_up_that_follows_the_die_temperature_from_one
         assert ("warmup_transient", a) not in deterministic(r) and not TEMP_NAMES & {n for n, _ in deterministic(r)}, \
             (warm, [(f.effect, f.axis, f.params) for f in r.findings])
         assert in_the_cubic(r, ds, a) > 0.5 * amp, (warm, in_the_cubic(r, ds, a), amp)
+        said_where_it_holds(r, ds)
+        assert a in {e["axis"] for e in r.temperature_in_time}, (warm, r.temperature_in_time)
     ds, e = self_heating_run(WARMUP_SEED, "time", None)
     r = diagnose(ds)
     assert ("warmup_transient", e["axis"]) in deterministic(r), [(f.effect, f.axis, f.params) for f in r.findings]
+    assert r.temperature_in_time == []  # no temperature moved: no cubic to say anything of
+
+
+def said_where_it_holds(result, ds, at_least_dps: float = 0.03) -> None:
+    """Every axis whose temperature cubic holds at least ``at_least_dps`` between the first and the
+    last row is said to be one run's drift in time as much as a temperature coefficient, with the
+    die's 20 -> 24 degC (``confounded.py``), and the sentence is in the summary."""
+    said = {e["axis"]: e for e in result.temperature_in_time}
+    for a in result.axes:
+        if abs(in_the_cubic(result, ds, a)) >= at_least_dps:
+            assert a in said, (a, in_the_cubic(result, ds, a), said)
+    for e in said.values():
+        assert e["monotone"] and e["since_power_on"] and round(e["temp_last_c"]) == T0_C + SELF_HEATING_C, e
+        assert any(ln.startswith(f"{e['axis']}: the temperature coefficient holds") for ln in result.summary_lines())
 
 
 @pytest.mark.parametrize("kind,k,walk_k", [("warmup_transient", 2, 1e-3), ("hours", 0, 0.0), ("bump", 1, 0.0)],
@@ -108,3 +126,4 @@ def test_a_self_heating_channel_names_nothing_in_a_walk_or_the_phones_wander(rea
     ds, _ = self_heating_run(_seed("real", "s5", kind, k), None, 291.8, walk_k=walk_k)
     r = diagnose(ds)
     assert deterministic(r) == [], [(f.effect, f.axis, f.params) for f in r.findings]
+    said_where_it_holds(r, ds)

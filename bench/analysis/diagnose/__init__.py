@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.analysis.dataset import Dataset
 from bench.analysis.diagnose import noise as nm
+from bench.analysis.diagnose.confounded import temperature_in_time
 from bench.analysis.diagnose.data import Prepared, prepare
 from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
                                             build_state, has_temp_cubic, search)
@@ -293,11 +294,14 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
 
     structure = {stage: {a: analyse(p, a, st.axes[a].heldout_resid(p.blocks), floors[a]) for a in p.axes}
                  for stage, st in (("baseline", s.baseline), ("extended", s.final))}
+    fitted = _fitted_baseline(p, s)
+    in_time = temperature_in_time(p.t, p.temp, p.power_on, {a: fitted["in_run_poly"][AXES.index(a)] for a in p.axes},
+                                  floors) if has_temp_cubic(p) else {}
     return DiagnoseResult(
         source=ds.source, axes=axes, findings=findings, skipped=skipped, skipped_reasons=reasons,
         not_excited=s.not_excited, noise_floor=floors, rows=p.n, sample_rate_hz=p.fs, model_path=model_path,
-        base_model=raw, fitted_baseline=_fitted_baseline(p, s), rounds=s.rounds, dropped=s.dropped,
-        fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, unexplained=ow.unexplained,
+        base_model=raw, fitted_baseline=fitted, rounds=s.rounds, dropped=s.dropped,
+        temperature_in_time=list(in_time.values()), fixed_terms=[f"{t.effect}:{t.axis}" for t in fixed], structure=structure, unexplained=ow.unexplained,
         band_s=p.blocks.length / p.fs, noise=noise_section, _internal=(p, s))
 
 

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.analysis.diagnose.confounded import line as in_time_line
 from bench.analysis.diagnose.terms import CANDIDATES
 
 SCHEMA = "bench-sensor-model/1"
@@ -74,6 +75,9 @@ class DiagnoseResult:
     model_path: str | None = None
     base_model: dict[str, Any] | None = None
     fitted_baseline: dict[str, Any] = field(default_factory=dict)
+    temperature_in_time: list[dict[str, Any]] = field(default_factory=list)
+    """Axes whose fitted temperature cubic is material but the temperature moved only with time, so
+    one run cannot tell it from a drift in time (``confounded.py``; deg/s, °C)."""
     rounds: list[list[dict[str, Any]]] = field(default_factory=list)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     fixed_terms: list[str] = field(default_factory=list)
@@ -100,6 +104,7 @@ class DiagnoseResult:
             "skipped": list(self.skipped),
             "band_s": _num(self.band_s),
             "noise": _plain(self.noise),
+            "temperature_in_time": _plain(self.temperature_in_time),
         }
 
     def summary_lines(self) -> list[str]:
@@ -124,6 +129,7 @@ class DiagnoseResult:
                          + _band_text(mine) + ")")
             lines.append("; ".join(parts))
             lines += [self.unexplained_line(u) for u in left]
+        lines += [in_time_line(e) for e in self.temperature_in_time]
         for a in self.axes:
             line = self.noise_line(a)
             if line:
