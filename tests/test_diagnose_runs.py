@@ -159,6 +159,7 @@ def test_one_run_is_today_s_result_and_the_test_is_not_asked():
     (gone,) = [d for d in alone.dropped if d["effect"] == "warmup_transient"]
     assert gone["axis"] == a and gone["reason"].startswith("τ not bounded by the data"), gone
     assert gone["tau_s_interval"][1] == pytest.approx(300.0) and gone["tau_s_interval"][0] < gone["nl"]["tau_s"], gone
+    assert f"{a}: a warm-up was found but is not named: τ not bounded by the data" in "\n".join(alone.summary_lines())
 
 
 def test_runs_without_a_known_power_on_are_left_out_and_said():

@@ -24,7 +24,7 @@ from bench.analysis.diagnose.confounded import temperature_in_time
 from bench.analysis.diagnose.data import Prepared, prepare
 from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
                                             build_state, has_temp_cubic, search)
-from bench.analysis.diagnose.result import DiagnoseResult, Finding
+from bench.analysis.diagnose.result import UNBOUNDED, DiagnoseResult, Finding
 from bench.analysis.diagnose.terms import AXES, CANDIDATES, Built, Context
 from bench.errors import InputError
 from bench.model import effects as fx
@@ -154,10 +154,6 @@ def _select(p: Prepared, terms: list[Term], hidden: frozenset[str], progress: An
         found.sequence, found.final = sequence(p, build_state(p, terms), ow.found)
     found.dropped.extend(ow.dropped)
     return found, ow
-
-
-UNBOUNDED = "τ not bounded by the data"
-"""The start of a ``dropped`` reason for a warm-up whose τ interval reaches the top of its grid."""
 
 
 def _unbounded(dropped: list[dict[str, Any]], before: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:

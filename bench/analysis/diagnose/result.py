@@ -13,6 +13,9 @@ from bench.analysis.diagnose.confounded import line as in_time_line
 from bench.analysis.diagnose.terms import CANDIDATES
 
 SCHEMA = "bench-sensor-model/1"
+UNBOUNDED = "τ not bounded by the data"
+"""The start of a ``dropped`` reason for a warm-up whose τ interval reaches the top of its grid
+(:func:`bench.analysis.diagnose._unbounded_warmup`); such a warm-up is said in the summary."""
 
 
 @dataclass
@@ -129,6 +132,8 @@ class DiagnoseResult:
                          + _band_text(mine) + ")")
             lines.append("; ".join(parts))
             lines += [self.unexplained_line(u) for u in left]
+        lines += [f"{d['axis']}: a warm-up was found but is not named: {d['reason']}" for d in self.dropped
+                  if d.get("effect") == "warmup_transient" and str(d.get("reason", "")).startswith(UNBOUNDED)]
         lines += [in_time_line(e) for e in self.temperature_in_time]
         for a in self.axes:
             line = self.noise_line(a)
