@@ -17,9 +17,9 @@ def entry() -> int:
         try:
             from bench.cli import main, stdout_gone
         except ImportError as exc:  # a pybind11 module turns a stop landing in its import into this
-            if stop_within(exc) is None:
+            if (stop := stop_within(exc)) is None:
                 raise
-            raise stop_within(exc) from exc
+            raise stop from exc
 
         try:
             code = main()

@@ -433,30 +433,33 @@ def main(argv: list[str] | None = None) -> int:
         err.print(exc.one_line(), markup=False, soft_wrap=True)
         return EXIT_BAD_INPUT
     except KNOWN_ERRORS as exc:
-        if stop_within(exc) is not None:  # a library turned the stop signal into its own error
-            err.print(f"bench: {printable(stop_within(exc))}", markup=False, soft_wrap=True)
-            return EXIT_FAILED
+        if (stop := stop_within(exc)) is not None:  # a library turned the stop signal into its own error
+            return _stopped(err, stop)
         if args.debug:
             raise
         err.print(f"bench: {printable(exc)}", markup=False, soft_wrap=True)
         return EXIT_FAILED
     except StoppedDuringStartup as exc:
-        err.print(f"bench: {printable(exc)}", markup=False, soft_wrap=True)
-        return EXIT_FAILED
+        return _stopped(err, exc)
     except KeyboardInterrupt:
         err.print("bench: interrupted")
         return EXIT_FAILED
     except BrokenPipeError:
         return stdout_gone()
     except Exception as exc:  # noqa: BLE001 - last line of defence: one line, not a traceback
-        if stop_within(exc) is not None:  # a library turned the stop signal into its own error
-            err.print(f"bench: {printable(stop_within(exc))}", markup=False, soft_wrap=True)
-            return EXIT_FAILED
+        if (stop := stop_within(exc)) is not None:  # a library turned the stop signal into its own error
+            return _stopped(err, stop)
         if args.debug:
             raise
         err.print(f"bench: internal error: {type(exc).__name__}: {printable(exc)} (run with --debug for the traceback)", markup=False,
                   soft_wrap=True)
         return EXIT_FAILED
+
+
+def _stopped(err: Console | _LazyConsole, stop: StoppedDuringStartup) -> int:
+    """The one line of a start-up stopped by a signal (``bench: stopped during start-up by …``)."""
+    err.print(f"bench: {printable(stop)}", markup=False, soft_wrap=True)
+    return EXIT_FAILED
 
 
 def stdout_gone() -> int:

@@ -20,7 +20,7 @@ import numpy as np
 
 from bench.analysis.dataset import Dataset
 from bench.analysis.diagnose import noise as nm
-from bench.analysis.diagnose.confounded import temperature_in_time
+from bench.analysis.diagnose.confounded import temperature_in_time, white_rms
 from bench.analysis.diagnose.data import Prepared, prepare
 from bench.analysis.diagnose.engine import (GAIN_MIN, IC_MIN, T_REF_SCALE_C, Search, Term, baseline_built,
                                             build_state, has_temp_cubic, search)
@@ -251,12 +251,6 @@ def _fixed_terms(p: Prepared, name: str, axis: str, src: Any, ctx: Context) -> l
 
 
 # ---- result -------------------------------------------------------------------------------------
-def _noise_floor(r: np.ndarray) -> float:
-    """White-noise RMS from successive differences (robust: 1.4826·MAD/√2), deg/s."""
-    d = np.diff(r)
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2))
-
-
 def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: dict[str, Any] | None,
             fixed: list[Term], ow: Any, noise: list[Finding], noise_section: dict[str, Any]) -> DiagnoseResult:
     skipped, reasons = [], {}
@@ -285,7 +279,7 @@ def _result(p: Prepared, ds: Dataset, s: Search, model_path: str | None, raw: di
                                                       "phase_rad": ln.phase_rad}, ln.rms_before, ln.rms_after,
                                 {"gain_heldout": ln.gain_heldout, "fitted_on": "raw samples, before binning"}))
     findings.extend(noise)
-    floors = {a: _noise_floor(s.final.axes[a].resid()) for a in p.axes}
+    floors = {a: white_rms(s.final.axes[a].resid()) for a in p.axes}
     from bench.analysis.diagnose.structure import analyse
 
     structure = {stage: {a: analyse(p, a, st.axes[a].heldout_resid(p.blocks), floors[a]) for a in p.axes}

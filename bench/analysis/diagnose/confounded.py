@@ -83,6 +83,13 @@ def temperature_in_time(t: np.ndarray, temp: np.ndarray, power_on: np.ndarray | 
     return out
 
 
+def white_rms(x: np.ndarray) -> float:
+    """The white-noise RMS of ``x`` (its unit) from successive differences, robust to slow
+    structure and outliers: 1.4826·MAD/√2 (the diagnose result's noise floor, deg/s)."""
+    d = np.diff(x)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2))
+
+
 def monotone(temp: np.ndarray) -> bool:
     """True when the temperature, averaged over :data:`SMOOTH_BLOCKS` blocks, never reverses by more
     than its resolution (smallest step between readings) plus four standard errors of a block mean
@@ -95,9 +102,7 @@ def monotone(temp: np.ndarray) -> bool:
     means = temp[: g * m].reshape(g, m).mean(axis=1)
     steps = np.abs(np.diff(np.unique(temp)))
     quantum = float(steps.min()) if steps.size else 0.0
-    d = np.diff(temp)
-    noise = float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2))
-    tol = quantum + 4.0 * noise / math.sqrt(m)
+    tol = quantum + 4.0 * white_rms(temp) / math.sqrt(m)
     rise = float(np.max(np.maximum.accumulate(means) - means))
     fall = float(np.max(means - np.minimum.accumulate(means)))
     return min(rise, fall) <= tol and float(np.ptp(means)) > tol

@@ -236,7 +236,7 @@ class _Run:
 
 def _run_axis(r: DiagnoseResult, a: str) -> _Run:
     """The slow residual of run ``r`` on axis ``a`` (module docstring) and what the draws need."""
-    from bench.analysis.diagnose import UNBOUNDED
+    from bench.analysis.diagnose import UNBOUNDED, _fixed_terms
     from bench.analysis.diagnose.engine import axis_state
     from bench.analysis.noise_model import fit_noise_model
 
@@ -248,8 +248,9 @@ def _run_axis(r: DiagnoseResult, a: str) -> _Run:
         st = axis_state(p, a, [t for t in every if t.effect != "warmup_transient"])
         own = any(t.effect == "warmup_transient" and t.axis == a for t in every)
         # a warm-up the run found but left unnamed (its τ not bounded by one run): its noise as if named
-        gone = [] if own else [_warm_term(p, s.final, a, d["nl"]) for d in r.dropped
-                               if d["effect"] == "warmup_transient" and d["axis"] == a and d["reason"].startswith(UNBOUNDED)]
+        gone = [] if own else [t for d in r.dropped
+                               if d["effect"] == "warmup_transient" and d["axis"] == a and d["reason"].startswith(UNBOUNDED)
+                               for t in _fixed_terms(p, "warmup_transient", a, d["nl"], s.final.context())]
         noise = axis_state(p, a, every + gone[-1:]).resid() if own or gone else None  # the noise as the run left it
     finally:
         p.whiten = saved
@@ -258,15 +259,6 @@ def _run_axis(r: DiagnoseResult, a: str) -> _Run:
     resid = st.y - U @ (U.T @ st.y)
     m = fit_noise_model(resid if noise is None else noise, 1.0 / p.fs, p.bin_rows)
     return _Run(np.asarray(p.power_on, float), p.t, resid, U, m, None if m.is_white else m.whitener(), p.bin_rows)
-
-
-def _warm_term(p: Any, final: Any, a: str, nl: dict[str, Any]) -> Any:
-    """The warm-up on axis ``a`` with parameters ``nl`` as a term of the state ``final``."""
-    from bench.analysis.diagnose.engine import Term
-    from bench.analysis.diagnose.terms import CANDIDATES
-
-    cand = CANDIDATES["warmup_transient"]
-    return Term(cand.name, a, dict(nl), cand.build(p, a, dict(nl), final.context()))
 
 
 def windows(starts: list[float], ends: list[float]) -> np.ndarray:
