@@ -31,6 +31,7 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
+from bench.ctrl_c import CtrlC, ctrl_c_noted
 from bench.errors import EXIT_OK, InputError
 from bench.quantity_format import fmt_hms, fmt_number, fmt_quantity, fmt_reading, is_status_column, unit_text
 from bench.record import layout
@@ -865,41 +866,54 @@ def watch(
     wait = (0.0 if once else WAIT_FOR_FILE_S) if wait_s is None else float(wait_s)
     tracker = StepTracker(keep=max_events)
     read = lambda: snapshot(path, stale_after_s=stale_after_s, max_events=max_events, tracker=tracker)  # noqa: E731
-    try:
-        state = _first_read(path, console, wait, read)
-        if once or state.final or (max_updates is not None and max_updates <= 1):
-            render(state, console)
+    with ctrl_c_noted() as ctrl_c:
+        try:
+            return _watch(path, console, read, ctrl_c, interval_s=interval_s, once=once, max_updates=max_updates, wait_s=wait)
+        except KeyboardInterrupt:
             return EXIT_OK
-        updates = 1
-        failing_since: float | None = None
-        with Live(build(state, console.width, console.height), console=console, auto_refresh=False, transient=False) as live:
-            next_at = time.monotonic() + interval_s
-            while max_updates is None or updates < max_updates:
-                time.sleep(max(0.0, next_at - time.monotonic()))
-                next_at = max(next_at + interval_s, time.monotonic())
-                try:
-                    state = read()
-                    failing_since = None
-                except InputError as exc:
-                    now = time.monotonic()
-                    failing_since = now if failing_since is None else failing_since
-                    if now - failing_since >= READ_RETRY_S:
-                        raise
-                    state.read_error = exc.one_line()
-                updates += 1
-                live.update(build(state, console.width, console.height), refresh=True)  # the size again: the terminal may have been resized
-                if state.final:
-                    break
-    except KeyboardInterrupt:
+
+
+def _watch(path: Path, console: Console, read, ctrl_c: CtrlC, *, interval_s: float, once: bool, max_updates: int | None,
+           wait_s: float) -> int:
+    """The body of :func:`watch`; ends at the run's end, after ``max_updates`` reads, or at a Ctrl-C
+    that a finaliser swallowed (``ctrl_c.pressed``, checked once per refresh)."""
+    state = _first_read(path, console, wait_s, read, ctrl_c)
+    if once or state.final or (max_updates is not None and max_updates <= 1):
+        render(state, console)
         return EXIT_OK
+    updates = 1
+    failing_since: float | None = None
+    with Live(build(state, console.width, console.height), console=console, auto_refresh=False, transient=False) as live:
+        next_at = time.monotonic() + interval_s
+        while max_updates is None or updates < max_updates:
+            time.sleep(max(0.0, next_at - time.monotonic()))
+            if ctrl_c.pressed:
+                break
+            next_at = max(next_at + interval_s, time.monotonic())
+            try:
+                state = read()
+                failing_since = None
+            except InputError as exc:
+                now = time.monotonic()
+                failing_since = now if failing_since is None else failing_since
+                if now - failing_since >= READ_RETRY_S:
+                    raise
+                state.read_error = exc.one_line()
+            updates += 1
+            live.update(build(state, console.width, console.height), refresh=True)  # the size again: the terminal may have been resized
+            if state.final or ctrl_c.pressed:
+                break
     return EXIT_OK
 
 
-def _first_read(path: Path, console: Console, wait_s: float, read) -> WatchState:
-    """First snapshot; waits up to ``wait_s`` for a file that does not exist or is still being set up."""
+def _first_read(path: Path, console: Console, wait_s: float, read, ctrl_c: CtrlC) -> WatchState:
+    """First snapshot; waits up to ``wait_s`` for a file that does not exist or is still being set up
+    (a Ctrl-C a finaliser swallowed ends the wait: ``KeyboardInterrupt`` again)."""
     deadline = time.monotonic() + wait_s
     told = False
     while True:
+        if ctrl_c.pressed:
+            raise KeyboardInterrupt
         if path.exists():
             try:
                 return read()

@@ -364,6 +364,46 @@ def test_ctrl_c_ends_the_live_view_quietly(tmp_path: Path) -> None:
     assert "endless soak" in console.export_text()
 
 
+@pytest.mark.signals
+def test_ctrl_c_swallowed_by_a_finaliser_still_ends_the_live_view(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """CI, 2026-11-28: the Ctrl-C's KeyboardInterrupt was raised inside a weakref callback, Python
+    dropped it ("Exception ignored in ...") and the live view ran on until the test's time limit.
+    Here a finaliser that runs during the third read receives the SIGINT: the view ends at the next
+    refresh, quietly (no "Exception ignored" traceback), not after its 200 updates."""
+    import bench.watch as watch_module
+
+    rec, board, _ = _create(tmp_path)
+    rec.event("step_start", "record", "endless soak", t_s=0.0, step=0)
+    _append(rec, board, _board_rows(0.0, 1.0))
+    rec.flush()
+
+    class SigintInFinaliser:
+        def __del__(self) -> None:
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(10_000):  # the handler runs here, inside the finaliser, which drops its exception
+                pass
+
+    reads = []
+    real_snapshot = watch_module.snapshot
+
+    def snapshot(*args, **kwargs):
+        reads.append(time.monotonic())
+        if len(reads) == 3:
+            SigintInFinaliser()  # collected at once: __del__ runs inside this read
+        return real_snapshot(*args, **kwargs)
+
+    monkeypatch.setattr(watch_module, "snapshot", snapshot)
+    console = Console(record=True, width=120)
+    try:
+        assert watch(rec.path, console, interval_s=0.05, max_updates=200) == EXIT_OK
+    finally:
+        rec.close("completed")
+    assert len(reads) == 3, f"{len(reads)} reads: the Ctrl-C was lost"
+    assert "Exception ignored" not in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Python's own handler back
+
+
 def test_max_updates_bounds_the_live_view(tmp_path: Path) -> None:
     rec, board, _ = _create(tmp_path)
     rec.event("step_start", "record", "soak", t_s=0.0, step=0)
