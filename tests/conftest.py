@@ -10,7 +10,15 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
+BLAS_THREADS_ENV = "OPENBLAS_NUM_THREADS"
+"""One BLAS thread for the suite and every process it starts (set before numpy is imported; a value
+already in the environment is kept). The suite's linear algebra is small (L-BFGS-B's matrices, a few
+hundred rows of least squares): a second OpenBLAS thread only waits for a core, and on the 2-core
+machine under load 5 tests/test_diagnose_noise.py took 70 s with OpenBLAS's default (one thread per
+core) and 14.5 s with one (same tests, same results; docs/testing.md)."""
+os.environ.setdefault(BLAS_THREADS_ENV, "1")
+
+import numpy as np  # noqa: E402  (after the BLAS thread count)
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]

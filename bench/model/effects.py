@@ -72,7 +72,6 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
-from scipy.signal import lfilter
 
 from bench.errors import InputError
 from bench.model.imu_simple import EARTH_RATE_DPS
@@ -283,6 +282,8 @@ def lagged(time_s: np.ndarray, x: np.ndarray, tau_s: float) -> np.ndarray:
         return x.copy()
     dt = float(np.median(np.diff(time_s))) if x.size > 1 else 1.0
     a = math.exp(-dt / tau_s)
+    from scipy.signal import lfilter  # here, not at the top: importing scipy.signal takes ~1 s (every bench process)
+
     y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])
     return y
 
@@ -557,6 +558,8 @@ def gauss_markov_noise(t: np.ndarray, sigma_dps: float, tau_s: float, rng: np.ra
     a = math.exp(-dt / tau_s)
     w = rng.standard_normal(n) * sigma_dps * math.sqrt(1.0 - a * a)
     w[0] = rng.standard_normal() * sigma_dps
+    from scipy.signal import lfilter  # here, not at the top: importing scipy.signal takes ~1 s (every bench process)
+
     return lfilter([1.0], [1.0, -a], w)
 
 

@@ -57,7 +57,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.signal import lfilter
 
 from bench.model import adc as adc_mod
 from bench.model import digital as dig_mod
@@ -369,6 +368,8 @@ class GyroModel:
             x[0] = phi[0] * s.gauss_markov_dps[:, j] + q[0] * w[0]
             if m > 1:
                 if uniform:
+                    from scipy.signal import lfilter  # here, not at the top: importing scipy.signal takes ~1 s
+
                     a = float(phi[1])
                     y, _ = lfilter([1.0], [1.0, -a], q[1:] * w[1:], axis=0, zi=(a * x[0])[None, :])
                     x[1:] = y
