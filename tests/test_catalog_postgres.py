@@ -6,6 +6,10 @@ room; else in the system's temporary directory), trust
 authentication, listening on 127.0.0.1 at a free port only (its socket in that directory), no
 fsync. PostgreSQL refuses to run as root, so as root the server runs as ``nobody`` (``runuser``).
 Every test gets a new database. When the server cannot be started the tests skip, saying why.
+A pytest killed before its tear-down (SIGKILL, or SIGTERM, which pytest does not catch) leaves its
+server running; the cluster's directory names the pytest that owns it (``owner.pid``), and the next
+session stops and deletes the clusters whose owner is gone (:func:`reap_orphans`), so they do not
+pile up (in ``/dev/shm`` they hold memory).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import shutil
 import socket
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -55,6 +60,46 @@ def _data_parent() -> str | None:
     return None
 
 
+OWNER_FILE = "owner.pid"
+"""In a cluster's directory: the process id of the pytest that made it."""
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, ended but not yet collected by its parent, does not)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        pass
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def reap_orphans(parents: list[Path], pg_ctl: str | None, as_user: list[str]) -> list[Path]:
+    """Stop (``pg_ctl stop -m immediate``) and delete every ``bench-pg-*`` cluster under ``parents``
+    whose owning pytest (``owner.pid``) is no longer running; returns the directories removed.
+    A directory without an owner file, or whose owner is alive, is left alone."""
+    removed = []
+    for parent in parents:
+        for root in sorted(parent.glob("bench-pg-*")) if parent.is_dir() else []:
+            try:
+                owner = int((root / OWNER_FILE).read_text().strip())
+            except (OSError, ValueError):
+                continue
+            if owner == os.getpid() or _alive(owner):
+                continue
+            if pg_ctl and (root / "data" / "postmaster.pid").exists():
+                subprocess.run([*as_user, pg_ctl, "-D", str(root / "data"), "-m", "immediate", "-w", "-t", "30", "stop"],
+                               capture_output=True, timeout=60)
+            shutil.rmtree(root, ignore_errors=True)
+            if not root.exists():
+                removed.append(root)
+    return removed
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -67,6 +112,7 @@ class Server:
     def __init__(self) -> None:
         self.initdb, self.pg_ctl = find_program("initdb"), find_program("pg_ctl")  # /usr/lib/postgresql/<major>/bin
         self.root = Path(tempfile.mkdtemp(prefix="bench-pg-", dir=_data_parent()))
+        (self.root / OWNER_FILE).write_text(f"{os.getpid()}\n")
         self.data = self.root / "data"
         self.log = self.root / "server.log"
         self.port = _free_port()
@@ -86,6 +132,7 @@ class Server:
                 return "running as root and 'runuser' is not available to start PostgreSQL as another user"
             self.as_user = [runuser, "-u", "nobody", "--"]
             shutil.chown(self.root, "nobody")
+        reap_orphans([MEMORY_DIR, Path(tempfile.gettempdir())], self.pg_ctl, self.as_user)  # before this one starts
         r = self._run(self.initdb, "-D", str(self.data), "-U", SERVER_USER, "--auth=trust", "-E", "UTF8", "--no-sync")
         if r.returncode != 0:
             return f"initdb failed: {(r.stderr or r.stdout).strip().splitlines()[-1:]}"
@@ -153,3 +200,34 @@ def test_server_is_postgresql(pg_server: Server) -> None:
         assert cat.backend == "postgresql" and conn.dialect.driver == "psycopg"
         assert conn.exec_driver_sql("SHOW server_version").scalar().split(".")[0].isdigit()
         assert cat.version() == 1
+
+
+def _ended_pid() -> int:
+    """The process id of a process that has ended (free, until the system reuses it)."""
+    p = subprocess.Popen(["true"])
+    p.wait()
+    return p.pid
+
+
+def test_a_cluster_left_by_a_killed_session_is_stopped_and_deleted(pg_server: Server, tmp_path: Path) -> None:
+    """A running cluster whose owning pytest is gone (as after ``kill -9``) is stopped and deleted by
+    the next session's reaper; one whose owner runs, or that names no owner, is left alone."""
+    orphan = Server()
+    why = orphan.start()
+    assert not why, why
+    try:
+        postmaster = int((orphan.data / "postmaster.pid").read_text().split()[0])
+        assert _alive(postmaster)
+        (orphan.root / OWNER_FILE).write_text(f"{_ended_pid()}\n")
+        mine, unowned = tmp_path / "bench-pg-mine", tmp_path / "bench-pg-unowned"
+        for d in (mine, unowned):
+            (d / "data").mkdir(parents=True)
+        (mine / OWNER_FILE).write_text(f"{os.getpid()}\n")
+        assert reap_orphans([orphan.root.parent, tmp_path], orphan.pg_ctl, orphan.as_user) == [orphan.root]
+        deadline = time.monotonic() + 30.0  # pg_ctl -w returns once the pid file is gone; the process ends just after
+        while _alive(postmaster) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not orphan.root.exists() and not _alive(postmaster)
+        assert mine.exists() and unowned.exists() and pg_server.root.exists()  # the session's own server kept
+    finally:
+        orphan.stop()
