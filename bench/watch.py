@@ -876,7 +876,7 @@ def watch(
 def _watch(path: Path, console: Console, read, ctrl_c: CtrlC, *, interval_s: float, once: bool, max_updates: int | None,
            wait_s: float) -> int:
     """The body of :func:`watch`; ends at the run's end, after ``max_updates`` reads, or at a Ctrl-C
-    that a finaliser swallowed (``ctrl_c.pressed``, checked once per refresh)."""
+    that a finaliser swallowed (``ctrl_c.pressed``, checked after each refresh)."""
     state = _first_read(path, console, wait_s, read, ctrl_c)
     if once or state.final or (max_updates is not None and max_updates <= 1):
         render(state, console)
@@ -887,8 +887,6 @@ def _watch(path: Path, console: Console, read, ctrl_c: CtrlC, *, interval_s: flo
         next_at = time.monotonic() + interval_s
         while max_updates is None or updates < max_updates:
             time.sleep(max(0.0, next_at - time.monotonic()))
-            if ctrl_c.pressed:
-                break
             next_at = max(next_at + interval_s, time.monotonic())
             try:
                 state = read()
